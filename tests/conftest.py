@@ -1,0 +1,35 @@
+"""Shared test set-up.
+
+With MOGO_BLOCK_TORCH=1 (how `make test-runtime` runs), importing torch or mogo_export raises, so the
+runtime's tests prove that mogo_runtime works on a machine without them.
+"""
+import importlib.abc
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+FIXTURES = ROOT.parent / "shared" / "fixtures" / "humanml3d"
+
+
+class _BlockTorch(importlib.abc.MetaPathFinder):
+    blocked = ("torch", "mogo_export")
+
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in self.blocked:
+            raise ImportError(f"{name} is blocked: the runtime must work without torch and mogo_export")
+        return None
+
+
+if os.environ.get("MOGO_BLOCK_TORCH") == "1":
+    sys.meta_path.insert(0, _BlockTorch())
+
+
+@pytest.fixture(scope="session")
+def humanml3d_fixture() -> Path:
+    """The real HumanML3D sample beside the repository (never copied into it)."""
+    if not (FIXTURES / "Mean.npy").exists():
+        raise FileNotFoundError(f"HumanML3D fixture missing at {FIXTURES}; tests expect ../shared beside the repo")
+    return FIXTURES
