@@ -1,0 +1,145 @@
+"""The autoregressive generation loop, written once for every backend (torch reference, onnxruntime).
+
+A backend computes; this module decides. Per step the backend's transformer step emits the logits of every
+quantizer level for the next time step (all L level streams in one pass); the sampler picks the tokens; the
+level-0 stream choosing END stops a prompt. Frames come from the causal motion decoder, either once at the end
+(`decode_tokens`) or window by window as tokens arrive (`FrameStreamer`), with identical results because a
+frame depends only on the last `receptive_field + 1` tokens.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterator, Protocol
+
+import numpy as np
+
+from .sampling import SamplingConfig, apply_guidance, sample
+
+
+@dataclass(frozen=True)
+class ModelDims:
+    num_levels: int          # L: residual quantizer levels = parallel streams of the transformer
+    codebook_size: int       # K: codes per level; END = K, BOS = K + 1, PAD = K + 2
+    downsample: int          # motion frames per token
+    receptive_field: int     # tokens of history (besides its own) that a decoded frame depends on
+    feature_dim: int         # 263 for HumanML3D features
+    text_dim: int            # width of the text embedding the step graph takes
+    fps: float
+
+    @property
+    def end_id(self) -> int:
+        return self.codebook_size
+
+    @property
+    def bos_id(self) -> int:
+        return self.codebook_size + 1
+
+    @property
+    def pad_id(self) -> int:
+        return self.codebook_size + 2
+
+
+class Backend(Protocol):
+    """What the loop needs from an inference engine. Arrays are numpy; past is opaque to the loop."""
+
+    dims: ModelDims
+
+    def encode_text(self, texts: list[str]) -> np.ndarray: ...                 # (B, text_dim) float32
+
+    def empty_past(self, rows: int): ...                                          # rows = prompts in the batch
+
+    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past):             # tokens (B, S, L) int64
+        """-> (logits (B, S, L, K + 1) float32, new past)."""
+
+    def decode(self, tokens: np.ndarray) -> np.ndarray:                         # (B, T, L) int64
+        """Codebook lookup + causal decoder: -> de-normalised features (B, T * downsample, feature_dim)."""
+
+
+def make_rngs(seed: int | list[int], batch: int) -> list[np.random.Generator]:
+    """One generator per prompt: prompt i of a batch with seed s draws exactly what a lone run with s + i does."""
+    seeds = list(seed) if isinstance(seed, (list, tuple)) else [int(seed) + i for i in range(batch)]
+    if len(seeds) != batch:
+        raise ValueError(f"got {len(seeds)} seeds for {batch} prompts")
+    return [np.random.Generator(np.random.PCG64(s)) for s in seeds]
+
+
+def generate_tokens(backend: Backend, text_emb: np.ndarray, sampling: SamplingConfig,
+                    rngs: list[np.random.Generator], max_tokens: int, fixed_tokens: int | None = None,
+                    min_tokens: int = 1) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Yield (tokens (B, L), alive (B,) bool) once per time step, until every prompt has ended.
+
+    `alive[b]` is False from the step where prompt b chose END (its tokens that step are meaningless).
+    With `fixed_tokens` END is forbidden and every prompt runs exactly that many steps.
+    """
+    dims = backend.dims
+    B = text_emb.shape[0]
+    limit = fixed_tokens if fixed_tokens is not None else max_tokens
+    guided = sampling.guidance != 1.0
+    if guided:  # the unconditional branch: the all-zero text embedding the model was trained to see
+        text_emb = np.concatenate([text_emb, np.zeros_like(text_emb)], axis=0)
+    rows = text_emb.shape[0]
+    tokens = np.full((rows, 1, dims.num_levels), dims.bos_id, dtype=np.int64)
+    past = backend.empty_past(rows)
+    alive = np.ones(B, dtype=bool)
+    for t in range(limit):
+        logits, past = backend.step(text_emb, tokens, past)
+        logits = logits[:, -1]                                                  # (rows, L, K + 1)
+        if guided:
+            logits = apply_guidance(logits[:B], logits[B:], sampling.guidance)
+        logits = np.array(logits, dtype=np.float32)                             # own copy: masked below
+        logits[:, 1:, dims.end_id] = -np.inf      # only the coarsest stream may end the motion
+        if fixed_tokens is not None or t < min_tokens:
+            logits[:, 0, dims.end_id] = -np.inf
+        picked = sample(logits, sampling, rngs)                                 # (B, L)
+        alive &= picked[:, 0] != dims.end_id
+        yield picked, alive.copy()
+        if not alive.any():
+            return
+        # Ended prompts keep feeding a valid code; their rows are independent and their output is ignored.
+        feed = np.where(alive[:, None], picked, 0)
+        tokens = np.concatenate([feed, feed], axis=0)[:, None] if guided else feed[:, None]
+
+
+def collect_tokens(steps: Iterator[tuple[np.ndarray, np.ndarray]], batch: int, num_levels: int):
+    """Run the loop to the end: -> list of (T_b, L) token arrays, one per prompt."""
+    out: list[list[np.ndarray]] = [[] for _ in range(batch)]
+    for picked, alive in steps:
+        for b in np.flatnonzero(alive):
+            out[b].append(picked[b])
+    return [np.stack(o) if o else np.zeros((0, num_levels), np.int64) for o in out]
+
+
+def decode_tokens(backend: Backend, token_seqs: list[np.ndarray]) -> list[np.ndarray]:
+    """All prompts through the decoder in one batch; the decoder is causal, so right padding is harmless."""
+    T = max(len(s) for s in token_seqs)
+    if T == 0:
+        return [np.zeros((0, backend.dims.feature_dim), np.float32) for _ in token_seqs]
+    batch = np.zeros((len(token_seqs), T, backend.dims.num_levels), np.int64)
+    for b, seq in enumerate(token_seqs):
+        batch[b, :len(seq)] = seq
+    feats = backend.decode(batch)                                               # (B, T * ds, D)
+    ds = backend.dims.downsample
+    return [feats[b, :len(seq) * ds] for b, seq in enumerate(token_seqs)]
+
+
+class FrameStreamer:
+    """Turns tokens into frames as they arrive, decoding only the window a new frame depends on.
+
+    Holds a fixed (B, window, L) ring of recent tokens, so a step allocates nothing the size of the motion.
+    """
+
+    def __init__(self, backend: Backend, batch: int):
+        self.backend = backend
+        self.window = backend.dims.receptive_field + 1
+        self.tokens = np.zeros((batch, self.window, backend.dims.num_levels), np.int64)
+        self.count = 0
+
+    def push(self, picked: np.ndarray) -> np.ndarray:
+        """picked (B, L) of the newest step -> features (B, downsample, D) of that step's frames."""
+        self.tokens[:, :-1] = self.tokens[:, 1:]
+        # A prompt that just ended carries END; decode a valid code in its place (its frames are dropped).
+        self.tokens[:, -1] = np.where(picked < self.backend.dims.codebook_size, picked, 0)
+        self.count += 1
+        n = min(self.count, self.window)
+        feats = self.backend.decode(self.tokens[:, self.window - n:])           # (B, n * ds, D)
+        return feats[:, -self.backend.dims.downsample:]

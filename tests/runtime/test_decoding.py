@@ -1,0 +1,125 @@
+"""The generation loop and sampling policy, driven by a small numpy backend with known behaviour."""
+import numpy as np
+import pytest
+
+from mogo_runtime.decoding import FrameStreamer, ModelDims, collect_tokens, decode_tokens, generate_tokens, make_rngs
+from mogo_runtime.sampling import SamplingConfig, sample
+
+DIMS = ModelDims(num_levels=3, codebook_size=7, downsample=2, receptive_field=2, feature_dim=4, text_dim=5, fps=20.0)
+
+
+class ToyBackend:
+    """Rows are independent; logits depend on the text, the last tokens and the position; END forced at `end_at`."""
+
+    def __init__(self, end_at=None, seed=0):
+        rng = np.random.default_rng(seed)
+        self.dims = DIMS
+        V = DIMS.codebook_size + 1
+        self.w_text = rng.normal(size=(DIMS.text_dim, DIMS.num_levels * V))
+        self.w_tok = rng.normal(size=(DIMS.codebook_size + 3, DIMS.num_levels * V))
+        self.codes = rng.normal(size=(DIMS.num_levels, DIMS.codebook_size, DIMS.feature_dim))
+        self.end_at = end_at
+        self.rows_seen = []
+
+    def empty_past(self, rows):
+        return np.zeros(rows, np.int64)
+
+    def step(self, text_emb, tokens, past):
+        self.rows_seen.append(text_emb.copy())
+        R, S, L = tokens.shape
+        V = DIMS.codebook_size + 1
+        h = text_emb @ self.w_text + self.w_tok[tokens[:, -1]].sum(1) + 0.3 * past[:, None]
+        logits = h.reshape(R, 1, L, V).astype(np.float32)
+        logits[..., DIMS.end_id] = -5.0
+        if self.end_at is not None:
+            logits[np.asarray(self.end_at)[:R] == past, :, 0, DIMS.end_id] = 1e3
+        return logits, past + S
+
+    def decode(self, tokens):
+        # latent of a token = sum of its level codes; a frame = sum of its token's latent and the 2 before.
+        lat = sum(self.codes[l][tokens[..., l]] for l in range(DIMS.num_levels))   # (B, T, D)
+        out = lat.copy()
+        for k in range(1, DIMS.receptive_field + 1):
+            out[:, k:] += lat[:, :-k] * (0.5 ** k)
+        return np.repeat(out, DIMS.downsample, axis=1).astype(np.float32)
+
+
+def run(backend, emb, sampling, seed, **kw):
+    rngs = make_rngs(seed, len(emb))
+    return collect_tokens(generate_tokens(backend, emb, sampling, rngs, max_tokens=kw.pop("max_tokens", 12), **kw),
+                          len(emb), DIMS.num_levels)
+
+
+def test_same_seed_same_tokens_and_seed_matters():
+    emb = np.random.default_rng(1).normal(size=(2, DIMS.text_dim)).astype(np.float32)
+    s = SamplingConfig(temperature=1.0)
+    a, b, c = run(ToyBackend(), emb, s, 3), run(ToyBackend(), emb, s, 3), run(ToyBackend(), emb, s, 4)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert not all(np.array_equal(x, y) for x, y in zip(a, c))
+
+
+def test_batch_equals_single_runs_with_the_same_seeds():
+    emb = np.random.default_rng(2).normal(size=(3, DIMS.text_dim)).astype(np.float32)
+    s = SamplingConfig(temperature=0.8, top_k=4, top_p=0.9)
+    batch = run(ToyBackend(end_at=[4, 9, 6]), emb, s, 10)
+    for i in range(3):
+        single = run(ToyBackend(end_at=[[4, 9, 6][i]]), emb[i:i + 1], s, 10 + i)
+        assert np.array_equal(batch[i], single[0])
+    assert [len(x) for x in batch] == [4, 9, 6]
+
+
+def test_end_token_only_from_level_zero_and_fixed_length_forbids_it():
+    emb = np.ones((1, DIMS.text_dim), np.float32)
+    toks = run(ToyBackend(end_at=[5]), emb, SamplingConfig(temperature=0.0), 0)
+    assert len(toks[0]) == 5 and (toks[0] < DIMS.codebook_size).all()
+    fixed = run(ToyBackend(end_at=[5]), emb, SamplingConfig(temperature=0.0), 0, fixed_tokens=9)
+    assert len(fixed[0]) == 9 and (fixed[0] < DIMS.codebook_size).all()
+
+
+def test_top_k_one_and_tiny_top_p_are_greedy():
+    logits = np.random.default_rng(5).normal(size=(4, 3, 11)).astype(np.float32)
+    greedy = sample(logits, SamplingConfig(temperature=0.0), make_rngs(0, 4))
+    assert np.array_equal(greedy, logits.argmax(-1))
+    assert np.array_equal(sample(logits, SamplingConfig(temperature=1.5, top_k=1), make_rngs(0, 4)), greedy)
+    assert np.array_equal(sample(logits, SamplingConfig(temperature=1.5, top_p=1e-6), make_rngs(0, 4)), greedy)
+
+
+def test_sampling_follows_the_distribution():
+    logits = np.log(np.array([[[0.7, 0.2, 0.1]]], np.float32))
+    rngs = make_rngs(0, 1)
+    picks = np.array([sample(logits, SamplingConfig(temperature=1.0), rngs)[0, 0] for _ in range(4000)])
+    freq = np.bincount(picks, minlength=3) / len(picks)
+    assert np.allclose(freq, [0.7, 0.2, 0.1], atol=0.03), freq
+    top2 = np.array([sample(logits, SamplingConfig(temperature=1.0, top_k=2), rngs)[0, 0] for _ in range(2000)])
+    assert set(top2.tolist()) <= {0, 1}
+
+
+def test_guidance_runs_an_unconditional_branch_with_zero_text():
+    backend = ToyBackend()
+    emb = np.ones((2, DIMS.text_dim), np.float32)
+    run(backend, emb, SamplingConfig(temperature=0.0, guidance=2.0), 0, max_tokens=3)
+    seen = backend.rows_seen[0]
+    assert seen.shape == (4, DIMS.text_dim) and np.all(seen[2:] == 0) and np.all(seen[:2] == 1)
+
+
+def test_streamed_frames_equal_offline_decode():
+    backend = ToyBackend(end_at=[7, 10])
+    emb = np.random.default_rng(3).normal(size=(2, DIMS.text_dim)).astype(np.float32)
+    rngs = make_rngs(9, 2)
+    streamer = FrameStreamer(backend, 2)
+    frames = [[], []]
+    for picked, alive in generate_tokens(backend, emb, SamplingConfig(temperature=1.0), rngs, max_tokens=12):
+        feats = streamer.push(picked)
+        for b in np.flatnonzero(alive):
+            frames[b].append(feats[b])
+    offline = decode_tokens(backend, run(ToyBackend(end_at=[7, 10]), emb, SamplingConfig(temperature=1.0), 9))
+    for b in range(2):
+        assert np.allclose(np.concatenate(frames[b]), offline[b], atol=1e-6)
+
+
+def test_bad_sampling_options_are_refused():
+    for kw in ({"temperature": -1}, {"top_k": 0}, {"top_p": 0.0}, {"top_p": 1.5}, {"guidance": -2}):
+        with pytest.raises(ValueError):
+            SamplingConfig(**kw)
+    with pytest.raises(ValueError, match="seeds"):
+        make_rngs([1, 2], 3)
