@@ -1,0 +1,212 @@
+"""The HumanML3D motion feature vector: its layout, features -> joints, and (de)normalisation."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .quaternion import cont6d_to_matrix, qinv, qrot, quaternion_to_matrix
+
+_FIELDS = ("root_rot_vel", "root_lin_vel", "root_y", "ric", "rot6d", "local_vel", "foot_contact")
+
+
+@dataclass(frozen=True)
+class FeatureLayout:
+    """Where each field sits in a frame's feature vector, for a skeleton of J joints (D = 12J - 1).
+
+      root_rot_vel  1        change of the root's y-axis facing to the next frame, as a HALF angle (radians)
+      root_lin_vel  2        root xz velocity to the next frame, in the next frame's facing frame
+      root_y        1        root height
+      ric           (J-1)*3  joint positions relative to the root's xz, in the root's facing frame
+      rot6d         (J-1)*6  local joint rotations (first two rotation-matrix columns)
+      local_vel     J*3      joint velocities to the next frame, in the facing frame
+      foot_contact  4        left ankle, left toe, right ankle, right toe (1 = in contact)
+    D is 263 for HumanML3D (22 joints) and 251 for KIT-ML (21). The joints -> features direction is
+    mogo_export.data.humanml3d.extract_features.
+    """
+
+    num_joints: int
+
+    def __post_init__(self):
+        if not isinstance(self.num_joints, (int, np.integer)) or self.num_joints < 2:
+            raise ValueError(f"FeatureLayout.num_joints must be an int >= 2, got {self.num_joints!r}")
+
+    @classmethod
+    def for_skeleton(cls, skeleton) -> "FeatureLayout":
+        return cls(skeleton.num_joints)
+
+    @classmethod
+    def for_dim(cls, dim: int) -> "FeatureLayout":
+        """The layout whose vector has `dim` values (D = 12J - 1)."""
+        if (dim + 1) % 12 or dim < 23:
+            raise ValueError(f"no feature layout has dim {dim} (dims are 12*J - 1, e.g. 263, 251)")
+        return cls((dim + 1) // 12)
+
+    def _sizes(self) -> tuple[int, ...]:
+        j = self.num_joints
+        return (1, 2, 1, (j - 1) * 3, (j - 1) * 6, j * 3, 4)
+
+    @property
+    def dim(self) -> int:
+        return sum(self._sizes())
+
+    def slices(self) -> dict[str, slice]:
+        """Field name -> slice of the feature vector, in storage order."""
+        out, start = {}, 0
+        for name, size in zip(_FIELDS, self._sizes()):
+            out[name] = slice(start, start + size)
+            start += size
+        return out
+
+    root_rot_vel = property(lambda self: self.slices()["root_rot_vel"])
+    root_lin_vel = property(lambda self: self.slices()["root_lin_vel"])
+    root_y = property(lambda self: self.slices()["root_y"])
+    ric = property(lambda self: self.slices()["ric"])
+    rot6d = property(lambda self: self.slices()["rot6d"])
+    local_vel = property(lambda self: self.slices()["local_vel"])
+    foot_contact = property(lambda self: self.slices()["foot_contact"])
+
+    def to_dict(self) -> dict:
+        """JSON-friendly form for manifests: {"num_joints", "dim", "slices": {name: [start, stop]}}."""
+        return {
+            "num_joints": int(self.num_joints),
+            "dim": self.dim,
+            "slices": {k: [s.start, s.stop] for k, s in self.slices().items()},
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FeatureLayout":
+        """Inverse of `to_dict`; raises if the stored dim or slices disagree with this code's layout."""
+        try:
+            layout = cls(int(d["num_joints"]))
+        except (KeyError, TypeError) as e:
+            raise ValueError(f"feature layout needs 'num_joints', got {d!r}") from e
+        if "dim" in d and int(d["dim"]) != layout.dim:
+            raise ValueError(f"feature layout: dim {d['dim']} does not match {layout.num_joints} joints ({layout.dim})")
+        if "slices" in d and layout.to_dict()["slices"] != {k: list(v) for k, v in d["slices"].items()}:
+            raise ValueError(f"feature layout: slices {d['slices']} differ from this runtime's layout")
+        return layout
+
+
+def _as_features(features, num_joints: int) -> np.ndarray:
+    x = np.asarray(features)
+    layout = FeatureLayout(num_joints)
+    if x.ndim < 2 or x.shape[-1] != layout.dim:
+        raise ValueError(f"features must be (..., T, {layout.dim}) for {num_joints} joints, got {x.shape}")
+    return x
+
+
+def recover_root_rot_pos(features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Root facing quaternions (..., T, 4) and root positions (..., T, 3) from the first four features.
+
+    As HumanML3D's `recover_root_rot_pos`: frame 0 faces +z at the origin; the facing angle and the
+    root xz position integrate the previous frame's velocities (hence the shift by one).
+    """
+    x = np.asarray(features, dtype=np.float64)
+    rot_vel = x[..., 0]                                            # (..., T)
+    ang = np.zeros_like(rot_vel)
+    ang[..., 1:] = rot_vel[..., :-1]
+    ang = np.cumsum(ang, axis=-1)                                  # half-angles, as in the features
+    r_quat = np.zeros(x.shape[:-1] + (4,))
+    r_quat[..., 0] = np.cos(ang)
+    r_quat[..., 2] = np.sin(ang)                                   # (..., T, 4) rotation about y
+
+    r_pos = np.zeros(x.shape[:-1] + (3,))
+    r_pos[..., 1:, 0] = x[..., :-1, 1]
+    r_pos[..., 1:, 2] = x[..., :-1, 2]
+    r_pos = np.cumsum(qrot(qinv(r_quat), r_pos), axis=-2)          # velocities back to world frame
+    r_pos[..., 1] = x[..., 3]
+    return r_quat, r_pos
+
+
+def recover_from_ric(features: np.ndarray, num_joints: int) -> np.ndarray:
+    """(..., T, D) features -> (..., T, J, 3) joint positions, as HumanML3D's `recover_from_ric`.
+
+    Computed in float64; returns the input's float dtype (float32 for anything not floating).
+    """
+    x = _as_features(features, num_joints)
+    out_dtype = x.dtype if x.dtype.kind == "f" else np.float32
+    r_quat, r_pos = recover_root_rot_pos(x)
+    ric = np.asarray(x[..., 4:4 + (num_joints - 1) * 3], dtype=np.float64)
+    ric = ric.reshape(ric.shape[:-1] + (num_joints - 1, 3))       # (..., T, J-1, 3)
+    pos = qrot(qinv(r_quat)[..., None, :], ric)                    # undo the facing rotation
+    pos[..., 0] += r_pos[..., None, 0]
+    pos[..., 2] += r_pos[..., None, 2]
+    joints = np.concatenate([r_pos[..., None, :], pos], axis=-2)  # (..., T, J, 3)
+    return joints.astype(out_dtype)
+
+
+def local_rotations(features: np.ndarray, num_joints: int) -> np.ndarray:
+    """(..., T, D) -> (..., T, J, 3, 3): joint 0 the root facing, joint k its rot6d rotation (parent frame).
+
+    Composing them down a kinematic chain maps each rest bone direction (Skeleton.raw_offsets) onto
+    the bone's world direction; `recover_from_rot` does exactly that.
+    """
+    x = _as_features(features, num_joints)
+    r_quat, _ = recover_root_rot_pos(x)
+    rot6d = np.asarray(x[..., FeatureLayout(num_joints).rot6d], dtype=np.float64)
+    rot6d = rot6d.reshape(rot6d.shape[:-1] + (num_joints - 1, 6))
+    # the facing quaternion itself, not its inverse: rot6d of a chain's first joint already holds it inverted
+    root = quaternion_to_matrix(r_quat)[..., None, :, :]          # (..., T, 1, 3, 3)
+    return np.concatenate([root, cont6d_to_matrix(rot6d)], axis=-3)
+
+
+def recover_from_rot(features: np.ndarray, skeleton) -> np.ndarray:
+    """(..., T, D) -> (..., T, J, 3) by forward kinematics of the rot6d rotations on `skeleton`'s bones.
+
+    As HumanML3D's `recover_from_rot`. Unlike `recover_from_ric` it keeps bone lengths exactly those of
+    the skeleton; on dataset features both agree to about a millimetre.
+    """
+    x = _as_features(features, skeleton.num_joints)
+    out_dtype = x.dtype if x.dtype.kind == "f" else np.float32
+    rot = local_rotations(x, skeleton.num_joints)                 # (..., T, J, 3, 3)
+    _, r_pos = recover_root_rot_pos(x)
+    offsets = np.asarray(skeleton.offsets, dtype=np.float64)      # (J, 3)
+    joints = np.zeros(rot.shape[:-2] + (3,))
+    joints[..., 0, :] = r_pos
+    for chain in skeleton.kinematic_chain:
+        m = rot[..., 0, :, :]
+        for parent, child in zip(chain[:-1], chain[1:]):
+            m = m @ rot[..., child, :, :]
+            joints[..., child, :] = (m @ offsets[child]) + joints[..., parent, :]
+    return joints.astype(out_dtype)
+
+
+def normalize(features: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    _check_stats(features, mean, std)
+    return (features - mean) / std
+
+
+def denormalize(features: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    _check_stats(features, mean, std)
+    return features * std + mean
+
+
+def _check_stats(features, mean, std) -> None:
+    d = np.shape(features)[-1]
+    if np.shape(mean) != (d,) or np.shape(std) != (d,):
+        raise ValueError(f"mean/std must be ({d},) for features (..., {d}), got {np.shape(mean)} and {np.shape(std)}")
+
+
+def load_mean_std(directory, dim: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Read a dataset's Mean.npy and Std.npy (float32, shape (D,)); check D against `dim` if given."""
+    directory = Path(directory)
+    arrays = []
+    for name in ("Mean.npy", "Std.npy"):
+        path = directory / name
+        if not path.is_file():
+            raise FileNotFoundError(f"feature statistics file missing: {path}")
+        a = np.load(path, allow_pickle=False)
+        if a.ndim != 1 or (dim is not None and a.shape[0] != dim):
+            want = f"({dim},)" if dim is not None else "(D,)"
+            raise ValueError(f"{path}: expected shape {want}, got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{path}: contains non-finite values")
+        arrays.append(a.astype(np.float32))
+    mean, std = arrays
+    if mean.shape != std.shape:
+        raise ValueError(f"{directory}: Mean.npy {mean.shape} and Std.npy {std.shape} differ in shape")
+    if np.any(std <= 0):
+        raise ValueError(f"{directory / 'Std.npy'}: has {int(np.sum(std <= 0))} entries <= 0")
+    return mean, std

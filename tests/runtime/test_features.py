@@ -1,0 +1,93 @@
+"""mogo_runtime.features: layout, features -> joints on the real HumanML3D clip, normalisation."""
+import numpy as np
+import pytest
+
+from mogo_runtime.features import (FeatureLayout, denormalize, load_mean_std, local_rotations, normalize,
+                                   recover_from_ric, recover_from_rot)
+from mogo_runtime.skeleton import HUMANML3D, KIT
+
+
+@pytest.fixture(scope="module")
+def clip(humanml3d_fixture):
+    feats = np.load(humanml3d_fixture / "new_joint_vecs" / "012314.npy")
+    joints = np.load(humanml3d_fixture / "new_joints" / "012314.npy")
+    return feats, joints
+
+
+def test_layout_matches_humanml3d_and_kit():
+    h, k = FeatureLayout.for_skeleton(HUMANML3D), FeatureLayout.for_skeleton(KIT)
+    assert (h.dim, k.dim) == (263, 251)
+    assert (h.root_rot_vel, h.root_lin_vel, h.root_y) == (slice(0, 1), slice(1, 3), slice(3, 4))
+    assert (h.ric, h.rot6d, h.local_vel, h.foot_contact) == (slice(4, 67), slice(67, 193), slice(193, 259),
+                                                             slice(259, 263))
+    stops = [s.stop for s in k.slices().values()]
+    starts = [s.start for s in k.slices().values()]
+    assert starts == [0] + stops[:-1] and stops[-1] == 251  # contiguous, covers the vector
+    assert FeatureLayout.from_dict(h.to_dict()) == h and FeatureLayout.for_dim(251) == k
+    bad = h.to_dict() | {"dim": 251}
+    with pytest.raises(ValueError, match="dim 251"):
+        FeatureLayout.from_dict(bad)
+    with pytest.raises(ValueError, match="no feature layout"):
+        FeatureLayout.for_dim(262)
+
+
+def test_recover_from_ric_reproduces_dataset_joints(clip):
+    feats, joints = clip
+    t = min(len(feats), len(joints))
+    got = recover_from_ric(feats, 22)
+    err = np.abs(got[:t] - joints[:t]).max()
+    print(f"\nrecover_from_ric: features {feats.shape}, joints {joints.shape}; max |error| {err:.3g} m over {t} frames")
+    assert got.shape == (len(feats), 22, 3) and got.dtype == np.float32
+    assert err < 1e-4
+
+
+def test_recover_from_ric_batched_and_float64(clip):
+    feats, joints = clip
+    batch = np.stack([feats, feats[::-1]]).astype(np.float64)  # (2, T, 263)
+    got = recover_from_ric(batch, 22)
+    assert got.shape == (2, len(feats), 22, 3) and got.dtype == np.float64
+    np.testing.assert_allclose(got[0], joints, atol=1e-4)
+    np.testing.assert_allclose(got[1], recover_from_ric(feats[::-1], 22), atol=1e-5)
+
+
+def test_recover_from_rot_agrees_via_skeleton_bones(clip):
+    feats, joints = clip
+    got = recover_from_rot(feats, HUMANML3D)
+    err = np.abs(got - joints).max()
+    print(f"\nrecover_from_rot: max |error| {err:.3g} m")
+    assert err < 1e-4
+    rots = local_rotations(feats, 22)
+    assert rots.shape == (len(feats), 22, 3, 3)
+    np.testing.assert_allclose(np.linalg.det(rots), 1.0, atol=1e-5)
+
+
+def test_recover_rejects_mismatched_dim(clip):
+    feats, _ = clip
+    with pytest.raises(ValueError, match="251"):
+        recover_from_ric(feats, 21)
+    with pytest.raises(ValueError, match="263"):
+        recover_from_ric(feats[0], 22)  # a single frame, no time axis
+
+
+def test_normalize_round_trip_and_dataset_stats(clip, humanml3d_fixture):
+    feats, _ = clip
+    mean, std = load_mean_std(humanml3d_fixture, dim=263)
+    assert mean.shape == std.shape == (263,) and mean.dtype == np.float32
+    z = normalize(feats, mean, std)
+    # the clip is one sample of the dataset: its normalised values are of order one, not raw scale
+    assert 0.1 < np.abs(z).mean() < 3
+    np.testing.assert_allclose(denormalize(z, mean, std), feats, atol=1e-5)
+    with pytest.raises(ValueError, match=r"\(263,\)"):
+        normalize(feats, mean[:-1], std[:-1])
+
+
+def test_load_mean_std_names_the_bad_file(tmp_path):
+    np.save(tmp_path / "Mean.npy", np.zeros(263, np.float32))
+    with pytest.raises(FileNotFoundError, match="Std.npy"):
+        load_mean_std(tmp_path)
+    np.save(tmp_path / "Std.npy", np.ones(251, np.float32))
+    with pytest.raises(ValueError, match=r"Std\.npy: expected shape \(263,\)"):
+        load_mean_std(tmp_path, dim=263)
+    np.save(tmp_path / "Std.npy", np.zeros(263, np.float32))
+    with pytest.raises(ValueError, match="Std.npy.*<= 0"):
+        load_mean_std(tmp_path)
