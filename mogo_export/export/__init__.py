@@ -1,0 +1,1 @@
+"""Export: torch models to self-describing ONNX graphs for the mogo bundle."""
