@@ -1,0 +1,363 @@
+"""BVH export: joint positions in metres -> a BVH file whose forward kinematics reproduce them.
+
+Motion in mogo is joint positions; animation tools want a skeleton with rotations. `joints_to_bvh_text`
+builds one by inverse kinematics:
+
+* Hierarchy and joint names come from the `Skeleton`. Every joint has rest rotation identity (the BVH
+  convention), so a joint's OFFSET is its rest bone vector in world axes (y up, the body faces +z).
+* OFFSETs are the skeleton's rest directions with bone lengths measured on the clip (median over frames),
+  so a clip on a skeleton of another size is still reproduced. Where a joint has several children (pelvis,
+  spine3) their relative layout is a fact of the clip (HumanML3D's hips are 69 degrees apart seen from
+  the pelvis, not the 180 of the rest directions), so it is measured too: the rigid shape that best fits
+  all frames (generalised Procrustes), turned to lie as close as possible to the rest directions.
+* Rotations: a joint with several children gets the best-fit (Kabsch) rotation of its children's offsets
+  onto the observed bones; a joint with one child gets the smallest rotation, in its parent's frame, that
+  swings its rest bone onto the observed one (no twist), except near the one direction where that swing
+  is undefined (bone pointing opposite its rest direction, e.g. an arm straight up) where the twist is
+  carried over from the previous frame and then relaxed back to zero, so nothing flips. Leaves keep
+  their parent's rotation.
+* Euler angles are intrinsic, in degrees, in the order the CHANNELS line lists them: the root's
+  `Yrotation Xrotation Zrotation` (R = Ry @ Rx @ Rz, heading first) and every other joint's
+  `Zrotation Yrotation Xrotation` (R = Rz @ Ry @ Rx); see ROOT_ORDER / JOINT_ORDER for why. They are
+  continuous over time: of the two Euler triples that give each rotation the one nearest the previous
+  frame is kept, then unwrapped, so there are no 180 or 360 degree jumps.
+* The root has position channels and OFFSET 0 0 0, so the channels are its world position whatever a
+  reader does with root offsets.
+
+Units: input joints are metres; the file is written in centimetres (`units="cm"`, the default, what most
+tools expect) or metres (`units="m"`). BVH has no comment syntax, so the unit is stated only here and by
+the caller's choice of `units`.
+"""
+from __future__ import annotations
+
+import os
+import secrets
+from pathlib import Path
+
+import numpy as np
+
+from .skeleton import HUMANML3D, Skeleton
+
+_UNIT_SCALE = {"cm": 100.0, "m": 1.0}
+# Intrinsic Euler orders (R = R_first @ R_mid @ R_last), chosen so gimbal lock (middle angle +-90) needs a
+# pose that hardly occurs: for the root, lying flat (heading is the outer angle, free to turn); for the
+# other joints, whose rest bones lie along y or z, swinging a bone 180 degrees or a foot/head 90 sideways.
+ROOT_ORDER = "YXZ"
+JOINT_ORDER = "ZYX"
+_TWIST_RELAX_S = 0.25  # time constant (seconds) for a carried-over twist to relax back to the swing
+
+
+# ----------------------------------------------------------------------------------------------------
+# public API
+
+def joints_to_bvh_text(joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, units: str = "cm") -> str:
+    """BVH text for `joints` (T, J, 3) in metres (y up), written in `units` ("cm" or "m") at `fps`."""
+    if units not in _UNIT_SCALE:
+        raise ValueError(f"units must be one of {sorted(_UNIT_SCALE)}, got {units!r}")
+    fps = _check_fps(fps)
+    pos = _check_joints(joints, skeleton)
+    offsets = rest_offsets(pos, skeleton)
+    local = _local_rotations(pos, skeleton, offsets, fps)              # (T, J, 3, 3)
+    root = _root(skeleton)
+    euler = np.degrees(_continuous_euler(local, JOINT_ORDER))          # (T, J, 3) in channel order
+    euler[:, root] = np.degrees(_continuous_euler(local[:, root:root + 1], ROOT_ORDER))[:, 0]
+    return _format(pos, offsets, euler, skeleton, fps, _UNIT_SCALE[units])
+
+
+def write_bvh(path, joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, units: str = "cm") -> Path:
+    """Write `joints` (T, J, 3) in metres as a BVH file at `path` (atomically). Returns the path."""
+    text = joints_to_bvh_text(joints, skeleton, fps, units)
+    path = Path(path)
+    _write_atomic(path, text.encode("ascii"))
+    return path
+
+
+def rest_offsets(joints, skeleton: Skeleton = HUMANML3D) -> np.ndarray:
+    """(J, 3) rest bone vectors (metres) fitted to a clip `joints` (T, J, 3); see the module docstring."""
+    pos = _check_joints(joints, skeleton)
+    parents = np.asarray(skeleton.parents)
+    children = _children(skeleton)
+    raw = np.asarray(skeleton.raw_offsets, dtype=np.float64)
+    offsets = np.zeros((skeleton.num_joints, 3))
+    for j, p in enumerate(parents):
+        if p < 0:
+            continue
+        norm = np.linalg.norm(raw[j])
+        if norm == 0:
+            raise ValueError(f"skeleton {skeleton.name!r}: joint {skeleton.joint_names[j]!r} has a zero rest direction")
+        length = np.median(np.linalg.norm(pos[:, j] - pos[:, p], axis=-1))
+        if length < 1e-6:
+            raise ValueError(f"bone {skeleton.joint_names[p]!r} -> {skeleton.joint_names[j]!r} has zero length "
+                             f"in the clip (median over frames); cannot build a skeleton")
+        offsets[j] = raw[j] / norm * length
+    for j, ch in enumerate(children):
+        if len(ch) < 2:
+            continue
+        bones = pos[:, ch] - pos[:, None, j]                            # (T, k, 3)
+        shape = offsets[ch]
+        for _ in range(3):  # exact after one pass on rigid data; more passes for noisy clips
+            rot = _kabsch(shape[None], bones)                           # (T, 3, 3): rot @ shape ~ bones
+            shape = np.einsum("tji,tkj->ki", rot, bones) / len(bones)   # mean of rot^T @ bones
+        # Turn the measured shape to lie as near the skeleton's rest directions as it can.
+        offsets[ch] = shape @ _kabsch(shape[None], offsets[None, ch])[0].T
+    return offsets
+
+
+# ----------------------------------------------------------------------------------------------------
+# inverse kinematics
+
+def _local_rotations(pos: np.ndarray, skeleton: Skeleton, offsets: np.ndarray, fps: float) -> np.ndarray:
+    T, J, _ = pos.shape
+    children = _children(skeleton)
+    glob = np.zeros((T, J, 3, 3))
+    local = np.zeros((T, J, 3, 3))
+    eye = np.broadcast_to(np.eye(3), (T, 3, 3))
+    relax = float(np.exp(-1.0 / (fps * _TWIST_RELAX_S)))
+    for j in _dfs_order(skeleton):
+        p = skeleton.parents[j]
+        parent = glob[:, p] if p >= 0 else eye
+        ch = children[j]
+        bones = pos[:, ch] - pos[:, None, j]                            # (T, k, 3)
+        if len(ch) >= 2 and not _collinear(offsets[ch]):
+            glob[:, j] = _kabsch(offsets[None, ch], bones)
+            local[:, j] = np.swapaxes(parent, -1, -2) @ glob[:, j]
+        elif ch:  # one child, or children on one line: the first one sets the rotation
+            d = np.einsum("tji,tj->ti", parent, bones[:, 0])            # the bone in the parent's frame
+            local[:, j] = _swing_with_continuous_twist(offsets[ch[0]], d, relax)
+            glob[:, j] = parent @ local[:, j]
+        else:
+            local[:, j] = np.eye(3)
+            glob[:, j] = parent
+    return local
+
+
+def _swing_with_continuous_twist(u: np.ndarray, d: np.ndarray, relax: float) -> np.ndarray:
+    """(T, 3, 3) rotations taking direction u to each d[t]: the pure swing, with a twist about u only
+    where the swing jumps (d near -u); that twist follows the bone over time and decays by `relax`/frame."""
+    u = u / np.linalg.norm(u)
+    d = _normalise(d, fallback=u)
+    swing = _min_rotation(np.broadcast_to(u, d.shape), d)              # (T, 3, 3)
+    # How much twist (about u) carrying the previous frame's rotation along the bone's motion adds
+    # on top of the swing: Tw(delta_t) = swing_t^T @ M_t @ swing_{t-1}, M_t the min rotation d_{t-1} -> d_t.
+    carry = _min_rotation(d[:-1], d[1:])
+    tw = np.swapaxes(swing[1:], -1, -2) @ carry @ swing[:-1]           # (T-1, 3, 3), each fixes u
+    w = _perpendicular(u)
+    tw_w = tw @ w
+    delta = np.arctan2(np.cross(w, tw_w) @ u, tw_w @ w)
+    near_flip = (d @ u) < -0.7                                          # swing is ill-conditioned there
+    theta = np.zeros(len(d))
+    for t in range(1, len(d)):
+        theta[t] = theta[t - 1] + delta[t - 1]
+        theta[t] = (theta[t] + np.pi) % (2 * np.pi) - np.pi
+        if not near_flip[t]:
+            theta[t] *= relax
+    return swing @ _axis_angle(u, theta)
+
+
+def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Rotations R (..., 3, 3) minimising sum_k |R @ src[..., k, :] - dst[..., k, :]|^2."""
+    h = np.swapaxes(src, -1, -2) @ dst                                  # sum_k src_k dst_k^T
+    u, _, vt = np.linalg.svd(h)
+    v, ut = np.swapaxes(vt, -1, -2), np.swapaxes(u, -1, -2)
+    flip = np.sign(np.linalg.det(v @ ut))
+    flip = np.where(flip == 0, 1.0, flip)
+    v = v.copy()
+    v[..., :, 2] *= flip[..., None]
+    return v @ ut
+
+
+def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) smallest rotations taking unit vectors a[n] to b[n] (any half-turn axis if b = -a)."""
+    axis = np.cross(a, b)
+    sin = np.linalg.norm(axis, axis=-1)
+    cos = np.einsum("ni,ni->n", a, b)
+    axis = np.where(sin[:, None] > 1e-12, axis / np.maximum(sin, 1e-300)[:, None], _perpendicular_rows(a))
+    return _axis_angle_rows(axis, np.arctan2(sin, cos))
+
+
+def _axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    return _axis_angle_rows(np.broadcast_to(axis, (len(angle), 3)), angle)
+
+
+def _axis_angle_rows(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rodrigues: (N, 3, 3) rotations by angle[n] about unit axis[n]."""
+    x, y, z = axis[:, 0], axis[:, 1], axis[:, 2]
+    k = np.zeros((len(angle), 3, 3))
+    k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -z, y, -x
+    k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = z, -y, x
+    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
+    return np.eye(3) + s * k + (1 - c) * (k @ k)
+
+
+def _perpendicular(u: np.ndarray) -> np.ndarray:
+    return _perpendicular_rows(u[None])[0]
+
+
+def _perpendicular_rows(u: np.ndarray) -> np.ndarray:
+    helper = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    return _normalise(np.cross(u, helper), fallback=np.array([0.0, 0.0, 1.0]))
+
+
+def _normalise(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.where(n > 1e-12, v / np.maximum(n, 1e-300), fallback)
+
+
+def _collinear(vectors: np.ndarray) -> bool:
+    s = np.linalg.svd(vectors, compute_uv=False)
+    return len(s) < 2 or s[1] < 1e-6 * max(s[0], 1e-12)
+
+
+# ----------------------------------------------------------------------------------------------------
+# Euler angles
+
+_AXIS = {"X": 0, "Y": 1, "Z": 2}
+
+
+def _continuous_euler(rot: np.ndarray, order: str) -> np.ndarray:
+    """(T, N, 3, 3) rotations -> (T, N, 3) radians, intrinsic `order` (e.g. "ZYX": R = Rz @ Ry @ Rx),
+    angles listed in that order, continuous in time."""
+    i, j, k = (_AXIS[a] for a in order)
+    e = 1.0 if (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0   # parity of the axis order
+    mid = np.arcsin(np.clip(e * rot[..., i, k], -1.0, 1.0))
+    first = np.arctan2(-e * rot[..., j, k], rot[..., k, k])
+    last = np.arctan2(-e * rot[..., i, j], rot[..., i, i])
+    locked = np.cos(mid) < 1e-7  # gimbal lock: only first +- last is defined
+    out = np.stack([first, mid, last], -1)
+    two_pi = 2 * np.pi
+    for t in range(len(rot)):
+        prev = out[t - 1] if t else np.zeros_like(out[0])
+        if locked[t].any():  # keep the previous `last` angle and solve `first` from what is left
+            n = np.flatnonzero(locked[t])
+            rest = rot[t, n] @ np.swapaxes(_axis_rotation(k, prev[n, 2]), -1, -2)  # = R_i(first) R_j(mid)
+            out[t, n, 0] = np.arctan2(e * rest[:, k, j], rest[:, j, j])
+            out[t, n, 2] = prev[n, 2]
+        if t == 0:
+            continue
+        a = out[t]
+        b = np.stack([a[:, 0] + np.pi, np.pi - a[:, 1], a[:, 2] + np.pi], -1)  # the same rotation
+        a = a + two_pi * np.round((prev - a) / two_pi)
+        b = b + two_pi * np.round((prev - b) / two_pi)
+        pick_b = ((b - prev) ** 2).sum(-1) < ((a - prev) ** 2).sum(-1)
+        out[t] = np.where(pick_b[:, None], b, a)
+    return out
+
+
+def _axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations by angle[n] about coordinate axis `axis`."""
+    return _axis_angle(np.eye(3)[axis], np.asarray(angle, dtype=np.float64))
+
+
+# ----------------------------------------------------------------------------------------------------
+# text and files
+
+def _format(pos, offsets, euler, skeleton: Skeleton, fps: float, scale: float) -> str:
+    names = skeleton.joint_names
+    for n in names:
+        if not n or any(c.isspace() for c in n):
+            raise ValueError(f"skeleton {skeleton.name!r}: joint name {n!r} cannot be written to BVH "
+                             f"(empty or has spaces)")
+    children = _children(skeleton)
+    lines = ["HIERARCHY"]
+    order: list[int] = []
+
+    def vec(v) -> str:
+        return " ".join(f"{c:.6f}" for c in v)
+
+    def joint(j: int, depth: int) -> None:
+        ind = "\t" * depth
+        root = skeleton.parents[j] < 0
+        lines.append(f"{ind}{'ROOT' if root else 'JOINT'} {names[j]}")
+        lines.append(f"{ind}{{")
+        lines.append(f"{ind}\tOFFSET {vec(np.zeros(3) if root else offsets[j] * scale)}")
+        chans = "CHANNELS 6 Xposition Yposition Zposition " if root else "CHANNELS 3 "
+        lines.append(f"{ind}\t{chans}{_channels(ROOT_ORDER if root else JOINT_ORDER)}")
+        order.append(j)
+        for c in children[j]:
+            joint(c, depth + 1)
+        if not children[j]:
+            # Half the incoming bone, along it: gives the leaf bone a visible length in viewers.
+            lines.append(f"{ind}\tEnd Site")
+            lines.append(f"{ind}\t{{")
+            lines.append(f"{ind}\t\tOFFSET {vec(offsets[j] * 0.5 * scale)}")
+            lines.append(f"{ind}\t}}")
+        lines.append(f"{ind}}}")
+
+    joint(_root(skeleton), 0)
+    lines += ["MOTION", f"Frames: {len(pos)}", f"Frame Time: {1.0 / fps:.8f}"]
+    root = _root(skeleton)
+    values = np.concatenate([pos[:, root] * scale, euler[:, order].reshape(len(pos), -1)], axis=1)
+    lines += [" ".join(f"{v:.6f}" for v in row) for row in values]
+    return "\n".join(lines) + "\n"
+
+
+def _channels(order: str) -> str:
+    return " ".join(f"{a}rotation" for a in order)
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # A fresh name opened with open(), not mkstemp: the file gets the usual umask permissions, not 0600.
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    try:
+        with open(tmp, "xb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+# ----------------------------------------------------------------------------------------------------
+# checks and skeleton helpers
+
+def _check_fps(fps) -> float:
+    try:
+        value = float(fps)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"fps must be a positive number, got {fps!r}")
+    return value
+
+
+def _check_joints(joints, skeleton: Skeleton) -> np.ndarray:
+    try:
+        pos = np.asarray(joints, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"joints must be a numeric array of shape (T, J, 3): {e}") from None
+    J = skeleton.num_joints
+    if pos.ndim != 3 or pos.shape[1:] != (J, 3) or pos.shape[0] < 1:
+        raise ValueError(f"joints must have shape (T, {J}, 3) for skeleton {skeleton.name!r} "
+                         f"(T >= 1 frames, metres), got {pos.shape}")
+    bad = ~np.isfinite(pos)
+    if bad.any():
+        t, j, _ = np.argwhere(bad)[0]
+        raise ValueError(f"joints contain NaN or inf ({int(bad.any(-1).sum())} joint positions), first at "
+                         f"frame {t} joint {j} ({skeleton.joint_names[j]})")
+    return pos
+
+
+def _children(skeleton: Skeleton) -> list[list[int]]:
+    children: list[list[int]] = [[] for _ in skeleton.parents]
+    for j, p in enumerate(skeleton.parents):
+        if p >= 0:
+            children[p].append(j)
+    return children
+
+
+def _root(skeleton: Skeleton) -> int:
+    roots = [j for j, p in enumerate(skeleton.parents) if p < 0]
+    if len(roots) != 1:
+        raise ValueError(f"skeleton {skeleton.name!r} must have exactly one root, has {len(roots)}")
+    return roots[0]
+
+
+def _dfs_order(skeleton: Skeleton) -> list[int]:
+    children = _children(skeleton)
+    order, stack = [], [_root(skeleton)]
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(reversed(children[j]))
+    return order
