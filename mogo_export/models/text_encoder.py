@@ -255,6 +255,30 @@ class MiniLMTextEncoder(nn.Module, TextEncoder):
 register_text_encoder(MiniLMTextEncoder.name, MiniLMTextEncoder)
 
 
+class TinyRandomTextEncoder(MiniLMTextEncoder):
+    """A 2-layer, 64-dim BERT with seeded random weights and MiniLM's tokenizer: no semantic knowledge.
+
+    For the `tiny` preset only, so tests export and run whole bundles in seconds instead of minutes; the same
+    architecture, export path and runtime as the real encoder.
+    """
+    name = "tiny-random-bert"
+
+    def __init__(self, seed: int = 0):
+        nn.Module.__init__(self)
+        model_dir = minilm_model_dir()
+        cfg = BertConfig(vocab_size=30522, n_layer=2, n_head=2, n_embd=64, n_inner=128, max_position=512)
+        torch.manual_seed(seed)
+        self.bert = Bert(cfg)
+        self.eval()
+        self.dim = cfg.n_embd
+        self.tokenizer_settings = MINILM_SETTINGS
+        self.tokenizer = configure_tokenizer(Tokenizer.from_file(str(model_dir / "tokenizer.json")),
+                                             MINILM_SETTINGS)
+
+
+register_text_encoder(TinyRandomTextEncoder.name, TinyRandomTextEncoder)
+
+
 # ---------------------------------------------------------------------------------------------------------
 # Embed each caption once: training sees the same captions every epoch.
 

@@ -1,0 +1,153 @@
+"""Write a bundle: every graph, the tokenizer, int8 variants and a manifest, atomically (docs/bundle.md).
+
+    mogo-export export checkpoints/base --out bundles/base [--opset 20] [--int8 step,text_encoder]
+
+The bundle is built in a hidden sibling folder and renamed into place only when complete, so a crash never
+leaves a half-written bundle looking finished.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime
+import onnxscript
+import torch
+from onnxruntime.quantization import QuantType, quantize_dynamic
+
+from mogo_runtime.bundle import SCHEMA, SCHEMA_VERSION, sha256_file
+from mogo_runtime.features import FeatureLayout
+from mogo_runtime.sampling import SamplingConfig
+from mogo_runtime.skeleton import get_skeleton
+
+from .. import __version__
+from ..checkpoint import build_from_checkpoint
+from ..models.text_encoder import get_text_encoder
+from ..models.transformer import RQHCTransformer, TransformerConfig
+from ..models.vq import MoSAVQ, VQConfig
+from .graphs import DEFAULT_OPSET, export_decoder, export_lookup, export_step
+from .text_encoder import export_text_encoder, quantize_text_encoder
+
+INT8_GRAPHS = ("step", "text_encoder")  # lookup and decoder stay fp32: ConvInteger ran slower than fp32 here
+SAMPLING_DEFAULTS = SamplingConfig(temperature=1.0, top_k=None, top_p=0.95, guidance=1.0)
+
+
+def load_models(ckpt_dir: Path):
+    vq, _, vq_payload = build_from_checkpoint(ckpt_dir / "vq.pt", "vq", VQConfig, MoSAVQ)
+    tr, _, tr_payload = build_from_checkpoint(ckpt_dir / "transformer.pt", "transformer", TransformerConfig,
+                                              RQHCTransformer)
+    return vq, vq_payload, tr, tr_payload
+
+
+def model_facts(vq: MoSAVQ, tr: RQHCTransformer, fps: float, max_tokens: int) -> dict:
+    t, v = tr.cfg, vq.cfg
+    return {
+        "num_levels": t.num_levels, "codebook_size": t.codebook_size, "end_id": t.end_id, "bos_id": t.bos_id,
+        "pad_id": t.pad_id, "n_layers": t.n_layers, "n_heads": t.n_heads, "head_dim": t.d_model // t.n_heads,
+        "d_model": t.d_model, "text_dim": t.text_dim, "max_rel_dist": t.max_rel_dist, "downsample": v.downsample,
+        "fps": fps, "receptive_field": vq.receptive_field, "feature_dim": v.input_dim, "latent_dim": v.code_dim,
+        "max_tokens": max_tokens, "learnable_scaling": v.learnable_scaling,
+    }
+
+
+def quantize_step(fp32: Path, int8: Path) -> dict:
+    """Dynamic int8 for the step graph: MatMuls with constant weights; per_channel=False (FACTS.md: per-channel
+    fails at run time on 3-D weights), QInt8 weights."""
+    options = {"per_channel": False, "weight_type": "QInt8", "op_types": ["MatMul", "Gemm"]}
+    # The quantizer rewrites Gemm weights in place, and the exporter's value_info for those initializers then
+    # contradicts shape inference ("Inferred shape and existing shape differ"): quantize a copy without it.
+    model = onnx.load(str(fp32))
+    del model.graph.value_info[:]
+    bare = int8.with_suffix(".bare.onnx")
+    onnx.save(model, str(bare))
+    try:
+        quantize_dynamic(str(bare), str(int8), per_channel=False, weight_type=QuantType.QInt8,
+                         op_types_to_quantize=["MatMul", "Gemm"])
+    finally:
+        bare.unlink(missing_ok=True)
+    return options
+
+
+def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OPSET,
+                  int8: tuple[str, ...] = INT8_GRAPHS, log=print) -> Path:
+    ckpt_dir, out = Path(ckpt_dir), Path(out)
+    unknown = set(int8) - set(INT8_GRAPHS)
+    if unknown:
+        raise ValueError(f"--int8 accepts {list(INT8_GRAPHS)}; got {sorted(unknown)}")
+    vq, vq_payload, tr, tr_payload = load_models(ckpt_dir)
+    meta = vq_payload["meta"]
+    fps = float(meta.get("fps", 20.0))
+    skeleton = get_skeleton(meta.get("skeleton", "humanml3d"))
+    facts = model_facts(vq, tr, fps, int(tr_payload["meta"].get("max_tokens", 50)))
+    encoder = get_text_encoder(tr_payload["meta"].get("text_encoder", "all-MiniLM-L6-v2"))
+    if encoder.dim != facts["text_dim"]:
+        raise ValueError(f"text encoder {encoder.name!r} gives {encoder.dim}-dim embeddings, the transformer "
+                         f"expects {facts['text_dim']}")
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    try:
+        graph_meta = {"mogo.schema": SCHEMA, "mogo.schema_version": SCHEMA_VERSION, "mogo.producer": __version__,
+                      **{f"mogo.{k}": v for k, v in facts.items()}}
+        t0 = time.perf_counter()
+        graphs, variants = {}, {"fp32": {}, "int8": {}}
+        log("exporting text_encoder ...")
+        te = export_text_encoder(encoder, tmp, opset)
+        graphs["text_encoder"] = {"inputs": te["inputs"], "outputs": te["outputs"]}
+        log("exporting step, lookup, decoder ...")
+        graphs["step"] = export_step(tr, tmp / "step.onnx", opset, {**graph_meta, "mogo.graph": "step"})
+        graphs["lookup"] = export_lookup(vq, tmp / "lookup.onnx", opset, {**graph_meta, "mogo.graph": "lookup"})
+        graphs["decoder"] = export_decoder(vq, meta["mean"], meta["std"], tmp / "decoder.onnx", opset,
+                                           {**graph_meta, "mogo.graph": "decoder"})
+        for g in graphs:
+            variants["fp32"][g] = {"file": f"{g}.onnx"}
+            variants["int8"][g] = {"file": f"{g}.onnx"}
+        for g in int8:
+            log(f"quantizing {g} to int8 ...")
+            fp32, q = tmp / f"{g}.onnx", tmp / f"{g}.int8.onnx"
+            options = quantize_text_encoder(fp32, q) if g == "text_encoder" else quantize_step(fp32, q)
+            variants["int8"][g] = {"file": q.name, "quantization": {"method": "onnxruntime.quantize_dynamic",
+                                                                     **options}}
+        files = {p.name: {"bytes": p.stat().st_size, "sha256": sha256_file(p)} for p in sorted(tmp.iterdir())}
+        manifest = {
+            "schema": SCHEMA,
+            "schema_version": SCHEMA_VERSION,
+            "producer": {"name": "mogo-export", "version": __version__, "torch": torch.__version__,
+                         "onnx": onnx.__version__, "onnxruntime": onnxruntime.__version__,
+                         "onnxscript": onnxscript.__version__, "python": platform.python_version(),
+                         "opset": opset, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                         "checkpoints": {"vq_step": vq_payload["train"].get("step"),
+                                         "transformer_step": tr_payload["train"].get("step"),
+                                         "preset": meta.get("preset")}},
+            "model": facts,
+            "skeleton": skeleton.to_dict(),
+            "features": FeatureLayout.for_skeleton(skeleton).to_dict(),
+            "normalization": {"mode": "decoder-output-denormalised", "mean": np.round(meta["mean"], 7).tolist(),
+                              "std": np.round(meta["std"], 7).tolist()},
+            "text_encoder": {"name": encoder.name, "tokenizer": "tokenizer.json", **te.get("metadata", {})},
+            "sampling_defaults": SAMPLING_DEFAULTS.to_dict(),
+            "graphs": graphs,
+            "variants": variants,
+            "files": files,
+        }
+        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        if out.exists():  # replace an older bundle only now that the new one is complete
+            old = out.parent / f".{out.name}.old-{os.getpid()}"
+            out.rename(old)
+            tmp.rename(out)
+            shutil.rmtree(old)
+        else:
+            tmp.rename(out)
+        log(f"bundle written to {out} in {time.perf_counter() - t0:.1f} s")
+        return out
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

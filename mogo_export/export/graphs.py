@@ -1,0 +1,172 @@
+"""One exporter per ONNX graph of the bundle: step (transformer + KV cache), lookup (tokens -> latent), decoder.
+
+Each function's docstring lists the graph's inputs and outputs; docs/bundle.md is the full contract. All use
+`torch.onnx.export(..., dynamo=True)` and then check the saved file: `onnx.checker` with full_check (a colliding
+name once exported fine and failed to load), symbolic dims really symbolic (a dim traced at size 0 or 1 is
+silently fixed, so we trace at sizes >= 2), only the default operator domain, no If/Loop nodes.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import warnings
+from pathlib import Path
+
+import onnx
+import torch
+import torch.nn as nn
+from torch.export import Dim
+
+from ..models.transformer import RQHCTransformer
+from ..models.vq import MoSAVQ
+
+DEFAULT_OPSET = 20
+_DTYPES = {onnx.TensorProto.FLOAT: "float32", onnx.TensorProto.INT64: "int64", onnx.TensorProto.FLOAT16: "float16"}
+
+
+class StepGraph(nn.Module):
+    """The transformer's `step`, with caches laid out per prompt: [batch, L * n_heads, past, head_dim].
+
+    Inside the model the L level streams are rows b*L + l; folding them into the head axis keeps `batch` the one
+    batch dim a consumer sees, and the reshape is free.
+    """
+
+    def __init__(self, model: RQHCTransformer):
+        super().__init__()
+        self.model = model
+        c = model.cfg
+        self.L, self.H, self.hd = c.num_levels, c.n_heads, c.d_model // c.n_heads
+
+    def forward(self, text_embedding, tokens, *past_flat):
+        B = tokens.shape[0]
+        L, H, hd = self.L, self.H, self.hd
+        past = [(past_flat[2 * i].reshape(B * L, H, -1, hd), past_flat[2 * i + 1].reshape(B * L, H, -1, hd))
+                for i in range(len(past_flat) // 2)]
+        logits, presents = self.model.step(text_embedding, tokens, past)
+        out = [logits]
+        for k, v in presents:
+            out += [k.reshape(B, L * H, -1, hd), v.reshape(B, L * H, -1, hd)]
+        return tuple(out)
+
+
+class LookupGraph(nn.Module):
+    def __init__(self, vq: MoSAVQ):
+        super().__init__()
+        self.quantizer = vq.quantizer
+
+    def forward(self, tokens):
+        return self.quantizer.lookup(tokens)
+
+
+class DecoderGraph(nn.Module):
+    """The causal decoder with de-normalisation folded in, so its output is HumanML3D features as they are."""
+
+    def __init__(self, vq: MoSAVQ, mean, std):
+        super().__init__()
+        self.decoder = vq.decoder
+        self.register_buffer("mean", torch.as_tensor(mean, dtype=torch.float32))
+        self.register_buffer("std", torch.as_tensor(std, dtype=torch.float32))
+
+    def forward(self, latent):
+        return self.decoder(latent) * self.std + self.mean
+
+
+def io_spec(model: onnx.ModelProto) -> dict:
+    """Inputs/outputs of a saved graph: name, dtype, shape with symbolic dims as strings."""
+    def one(v):
+        t = v.type.tensor_type
+        dims = [d.dim_param if d.dim_param else d.dim_value for d in t.shape.dim]
+        return {"name": v.name, "dtype": _DTYPES.get(t.elem_type, str(t.elem_type)), "shape": dims}
+    return {"inputs": [one(v) for v in model.graph.input], "outputs": [one(v) for v in model.graph.output]}
+
+
+def check_graph(path: Path, expected: dict[str, list]) -> dict:
+    """Validate a saved graph; `expected` maps each input/output name to its intended shape (str = symbolic)."""
+    model = onnx.load(str(path))
+    onnx.checker.check_model(model, full_check=True)
+    spec = io_spec(model)
+    got = {v["name"]: v["shape"] for v in spec["inputs"] + spec["outputs"]}
+    for name, shape in expected.items():
+        if name not in got:
+            raise RuntimeError(f"{path.name}: expected graph input/output {name!r}, graph has {sorted(got)}")
+        if len(got[name]) != len(shape) or any(
+                isinstance(want, str) != isinstance(have, str) or (not isinstance(want, str) and want != have)
+                for want, have in zip(shape, got[name])):
+            raise RuntimeError(f"{path.name}: {name!r} has shape {got[name]}, expected {shape} "
+                               "(a dynamic dim traced at size 0/1 becomes static)")
+    domains = {n.domain for n in model.graph.node} - {"", "ai.onnx"}
+    if domains:
+        raise RuntimeError(f"{path.name}: uses non-standard operator domains {sorted(domains)}")
+    control = {n.op_type for n in model.graph.node} & {"If", "Loop", "Scan"}
+    if control:
+        raise RuntimeError(f"{path.name}: contains control-flow nodes {sorted(control)}")
+    return spec
+
+
+def _export(module: nn.Module, args: tuple, path: Path, input_names, output_names, dynamic_shapes, opset: int,
+            metadata: dict) -> None:
+    module.eval()
+    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
+        warnings.simplefilter("ignore")
+        program = torch.onnx.export(module, args, dynamo=True, input_names=input_names, output_names=output_names,
+                                    dynamic_shapes=dynamic_shapes, opset_version=opset, external_data=False,
+                                    optimize=True, verbose=False)
+    model = program.model_proto
+    for key, value in metadata.items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, str(value)
+    onnx.save_model(model, str(path))
+
+
+def export_step(model: RQHCTransformer, path: Path, opset: int = DEFAULT_OPSET, metadata: dict | None = None) -> dict:
+    """step.onnx. Inputs: text_embedding float32 [batch, text_dim]; tokens int64 [batch, steps, L];
+    past_key_values.{i}.key/.value float32 [batch, L*n_heads, past, head_dim]. Outputs: logits float32
+    [batch, steps, L, K+1]; present.{i}.key/.value float32 [batch, L*n_heads, past+steps, head_dim]."""
+    c = model.cfg
+    L, H, hd = c.num_levels, c.n_heads, c.d_model // c.n_heads
+    B, S, P = 2, 3, 4  # every dynamic size >= 2 at trace time
+    g = torch.Generator().manual_seed(0)
+    text = torch.randn(B, c.text_dim, generator=g)
+    tokens = torch.randint(0, c.codebook_size, (B, S, L), generator=g)
+    past = [torch.randn(B, L * H, P, hd, generator=g) for _ in range(2 * c.n_layers)]
+    names_in = ["text_embedding", "tokens"]
+    names_out = ["logits"]
+    for i in range(c.n_layers):
+        names_in += [f"past_key_values.{i}.key", f"past_key_values.{i}.value"]
+        names_out += [f"present.{i}.key", f"present.{i}.value"]
+    batch, steps, plen = Dim("batch", min=1, max=1024), Dim("steps", min=1, max=4096), Dim("past", min=0, max=8192)
+    dyn = {"text_embedding": {0: batch}, "tokens": {0: batch, 1: steps},
+           "past_flat": [{0: batch, 2: plen} for _ in past]}
+    _export(StepGraph(model), (text, tokens, *past), path, names_in, names_out,
+            (dyn["text_embedding"], dyn["tokens"], tuple(dyn["past_flat"])), opset, metadata or {})
+    expected = {"text_embedding": ["batch", c.text_dim], "tokens": ["batch", "steps", L],
+                "logits": ["batch", "steps", L, c.codebook_size + 1]}
+    for i in range(c.n_layers):
+        for kv in ("key", "value"):
+            expected[f"past_key_values.{i}.{kv}"] = ["batch", L * H, "past", hd]
+            expected[f"present.{i}.{kv}"] = ["batch", L * H, "present", hd]
+    return check_graph(path, _rename_present(path, expected))
+
+
+def _rename_present(path: Path, expected: dict) -> dict:
+    """The exporter names the present length after its expression (e.g. 'past + steps'); accept any symbol."""
+    return {k: ([d if d != "present" else "any" for d in v]) for k, v in expected.items()}
+
+
+def export_lookup(vq: MoSAVQ, path: Path, opset: int = DEFAULT_OPSET, metadata: dict | None = None) -> dict:
+    """lookup.onnx. Input: tokens int64 [batch, tokens, L]. Output: latent float32 [batch, tokens, latent_dim]."""
+    c = vq.cfg
+    tokens = torch.randint(0, c.codebook_size, (2, 3, c.num_levels), generator=torch.Generator().manual_seed(0))
+    dyn = ({0: Dim("batch", min=1, max=1024), 1: Dim("tokens", min=1, max=8192)},)
+    _export(LookupGraph(vq), (tokens,), path, ["tokens"], ["latent"], dyn, opset, metadata or {})
+    return check_graph(path, {"tokens": ["batch", "tokens", c.num_levels], "latent": ["batch", "tokens", c.code_dim]})
+
+
+def export_decoder(vq: MoSAVQ, mean, std, path: Path, opset: int = DEFAULT_OPSET, metadata: dict | None = None) -> dict:
+    """decoder.onnx. Input: latent float32 [batch, tokens, latent_dim]. Output: features float32
+    [batch, frames, feature_dim], de-normalised; frames = tokens * downsample."""
+    c = vq.cfg
+    latent = torch.randn(2, 3, c.code_dim, generator=torch.Generator().manual_seed(0))
+    dyn = ({0: Dim("batch", min=1, max=1024), 1: Dim("tokens", min=1, max=8192)},)
+    _export(DecoderGraph(vq, mean, std), (latent,), path, ["latent"], ["features"], dyn, opset, metadata or {})
+    return check_graph(path, {"latent": ["batch", "tokens", c.code_dim], "features": ["batch", "any", c.input_dim]})
