@@ -1,0 +1,95 @@
+"""`mogo-export`: build data, train, export, verify. Each subcommand is one stage of the pipeline.
+
+    mogo-export dataset data/procedural --clips 2000
+    mogo-export train --data data/procedural --out checkpoints/base --preset base
+    mogo-export export checkpoints/base --out bundles/base
+    mogo-export verify bundles/base --checkpoints checkpoints/base
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _dataset(args) -> int:
+    from .data.procedural import build_dataset
+
+    build_dataset(args.out, num_clips=args.clips, seed=args.seed, progress=True)
+    print(f"dataset written to {args.out}")
+    return 0
+
+
+def _train(args) -> int:
+    from .train import train_all
+
+    train_all(args.data, args.out, preset=args.preset, seed=args.seed)
+    return 0
+
+
+def _export(args) -> int:
+    from .export.bundle import INT8_GRAPHS, export_bundle
+
+    int8 = () if args.int8 == "none" else tuple(g for g in args.int8.split(",") if g) or INT8_GRAPHS
+    export_bundle(args.checkpoints, args.out, opset=args.opset, int8=int8)
+    return 0
+
+
+def _verify(args) -> int:
+    from .verify import Thresholds, verify
+
+    th = Thresholds(fp32_abs=args.fp32_abs, joints_mm=args.joints_mm, int8_token_agreement=args.int8_agreement,
+                    int8_text_cosine=args.int8_cosine)
+    report = verify(args.bundle, args.checkpoints, th, int8=not args.no_int8)
+    print(report.table())
+    print("PASS" if report.ok else "FAIL: at least one check breached its bar")
+    return 0 if report.ok else 1
+
+
+def main(argv=None) -> int:
+    from .export.graphs import DEFAULT_OPSET
+
+    ap = argparse.ArgumentParser(prog="mogo-export", description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    p = sub.add_parser("dataset", help="write the procedural motion dataset (HumanML3D layout)")
+    p.add_argument("out", type=Path)
+    p.add_argument("--clips", type=int, default=2000)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(run=_dataset)
+
+    p = sub.add_parser("train", help="train MoSA-VQ, extract tokens, train the RQHC-Transformer")
+    p.add_argument("--data", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--preset", choices=["tiny", "base", "paper"], default="base")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(run=_train)
+
+    p = sub.add_parser("export", help="export checkpoints to an ONNX bundle")
+    p.add_argument("checkpoints", type=Path)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--opset", type=int, default=DEFAULT_OPSET)
+    p.add_argument("--int8", default="step,text_encoder",
+                   help="graphs to also write as int8: comma-separated from step,text_encoder, or 'none'")
+    p.set_defaults(run=_export)
+
+    p = sub.add_parser("verify", help="parity of a bundle against its checkpoints; exit 1 on any breach")
+    p.add_argument("bundle", type=Path)
+    p.add_argument("--checkpoints", type=Path, required=True)
+    p.add_argument("--fp32-abs", type=float, default=1e-4)
+    p.add_argument("--joints-mm", type=float, default=0.1)
+    p.add_argument("--int8-agreement", type=float, default=0.9)
+    p.add_argument("--int8-cosine", type=float, default=0.98)
+    p.add_argument("--no-int8", action="store_true")
+    p.set_defaults(run=_verify)
+
+    args = ap.parse_args(argv)
+    try:
+        return args.run(args)
+    except (ValueError, FileNotFoundError, KeyError) as e:
+        print(f"mogo-export: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,162 @@
+"""Parity verifier: does a bundle compute what its checkpoints compute? Exits non-zero on any breach.
+
+    mogo-export verify bundles/base --checkpoints checkpoints/base
+
+1. graphs: each ONNX graph vs its torch module on fresh random inputs, several shapes, past lengths 0, 1 and
+   beyond the relative-distance clip (fp32 bar 1e-4);
+2. end to end: the torch generator and the onnxruntime loop on the same prompts and seeds, greedy: identical
+   token sequences and decoded joints within 0.1 mm;
+3. int8 vs fp32: token agreement, logit error (int8 step teacher-forced on the fp32 tokens), decoded-joint
+   error, text-embedding cosine.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mogo_runtime.bundle import Bundle
+from mogo_runtime.decoding import collect_tokens, decode_tokens, generate_tokens, make_rngs
+from mogo_runtime.features import recover_from_ric
+from mogo_runtime.generator import OrtBackend
+from mogo_runtime.sampling import SamplingConfig
+
+from .export.graphs import DecoderGraph, StepGraph
+from .generate import TorchGenerator
+
+PROMPTS = ("a person walks forward", "a person waves with the right hand", "someone jumps in place twice",
+           "a man kicks with his left leg", "a person walks forward and then jumps", "a person squats down slowly")
+
+
+@dataclass
+class Thresholds:
+    fp32_abs: float = 1e-4           # graph outputs, max abs error
+    joints_mm: float = 0.1           # end to end fp32, max joint error
+    int8_token_agreement: float = 0.9  # fraction of (step, level) tokens equal, position by position
+    int8_text_cosine: float = 0.98   # int8 vs fp32 text embedding
+
+
+@dataclass
+class Report:
+    rows: list[tuple[str, str, str, bool]] = field(default_factory=list)   # check, measured, bar, ok
+
+    def add(self, check: str, value: float, bar: str, ok: bool, fmt: str = "{:.2e}"):
+        self.rows.append((check, fmt.format(value), bar, bool(ok)))
+
+    @property
+    def ok(self) -> bool:
+        return all(r[3] for r in self.rows)
+
+    def table(self) -> str:
+        w = max(len(r[0]) for r in self.rows)
+        lines = [f"| {'check'.ljust(w)} | measured | bar | |", f"|{'-' * (w + 2)}|---|---|---|"]
+        lines += [f"| {c.ljust(w)} | {v} | {b} | {'ok' if ok else 'BREACH'} |" for c, v, b, ok in self.rows]
+        return "\n".join(lines)
+
+
+def _step_feed(c, batch, steps, past, seed):
+    g = torch.Generator().manual_seed(seed)
+    H, hd = c.n_heads, c.d_model // c.n_heads
+    text = torch.randn(batch, c.text_dim, generator=g)
+    text = text / text.norm(dim=-1, keepdim=True)
+    tokens = torch.randint(0, c.codebook_size, (batch, steps, c.num_levels), generator=g)
+    if past == 0:
+        tokens[:, 0] = c.bos_id
+    pasts = [torch.randn(batch, c.num_levels * H, past, hd, generator=g) for _ in range(2 * c.n_layers)]
+    return text, tokens, pasts
+
+
+def check_graphs(gen: TorchGenerator, ort_backend: OrtBackend, report: Report, th: Thresholds) -> None:
+    tr, vq = gen.backend.transformer, gen.backend.vq
+    c = tr.cfg
+    worst = 0.0
+    for batch, steps, past in [(1, 1, 0), (2, 1, 1), (1, 1, c.max_rel_dist + 5), (3, 4, 0), (2, 2, 7)]:
+        text, tokens, pasts = _step_feed(c, batch, steps, past, seed=batch * 97 + steps * 7 + past)
+        with torch.no_grad():
+            want = StepGraph(tr)(text, tokens, *pasts)
+        logits, presents = ort_backend.step(text.numpy(), tokens.numpy(), [p.numpy() for p in pasts])
+        err = max(np.abs(logits - want[0].numpy()).max(),
+                  max(np.abs(p - w.numpy()).max() for p, w in zip(presents, want[1:])))
+        report.add(f"step graph b={batch} s={steps} past={past}", err, f"< {th.fp32_abs:g}", err < th.fp32_abs)
+        worst = max(worst, err)
+    for batch, T in [(1, 3), (2, 17)]:
+        idx = torch.randint(0, c.codebook_size, (batch, T, c.num_levels), generator=torch.Generator().manual_seed(T))
+        with torch.no_grad():
+            latent = vq.quantizer.lookup(idx)
+            feats = DecoderGraph(vq, gen.backend.mean, gen.backend.std)(latent)
+        got = ort_backend.decode(idx.numpy())
+        (got_latent,) = ort_backend.lookup_session.run(["latent"], {"tokens": idx.numpy()})
+        e1, e2 = np.abs(got_latent - latent.numpy()).max(), np.abs(got - feats.numpy()).max()
+        report.add(f"lookup graph b={batch} tokens={T}", e1, f"< {th.fp32_abs:g}", e1 < th.fp32_abs)
+        # features are de-normalised (metres and radians scale): compare relative to their magnitude
+        rel = e2 / max(1.0, float(np.abs(feats.numpy()).max()))
+        report.add(f"decoder graph b={batch} tokens={T} (rel)", rel, f"< {th.fp32_abs:g}", rel < th.fp32_abs)
+    texts = list(PROMPTS[:3]) + ["a person " + "walks and turns around " * 40]   # > 128 tokens
+    want = gen.backend.encode_text(texts)
+    got = ort_backend.encode_text(texts)
+    err = np.abs(got - want).max()
+    report.add("text_encoder graph (4 prompts, one > 128 tokens)", err, f"< {th.fp32_abs:g}", err < th.fp32_abs)
+
+
+def _ort_tokens(backend, texts, seeds, max_tokens):
+    emb = backend.encode_text(texts)
+    steps = generate_tokens(backend, emb, SamplingConfig(temperature=0.0), make_rngs(seeds, len(texts)), max_tokens)
+    return collect_tokens(steps, len(texts), backend.dims.num_levels)
+
+
+def _agreement(a: np.ndarray, b: np.ndarray) -> float:
+    """Fraction of (step, level) tokens equal, over the longer sequence (a length mismatch counts as disagreement)."""
+    n = min(len(a), len(b))
+    same = (a[:n] == b[:n]).sum()
+    return float(same) / max(1, max(len(a), len(b)) * a.shape[1])
+
+
+def check_end_to_end(gen: TorchGenerator, fp32: OrtBackend, int8: OrtBackend | None, report: Report,
+                     th: Thresholds, prompts=PROMPTS) -> None:
+    prompts = list(prompts)
+    seeds = list(range(len(prompts)))
+    J = gen.skeleton.num_joints
+    torch_tokens = gen.generate_tokens(prompts, seeds)
+    ort_tokens = _ort_tokens(fp32, prompts, seeds, gen.max_tokens)
+    identical = sum(np.array_equal(a, b) for a, b in zip(torch_tokens, ort_tokens))
+    report.add(f"greedy tokens identical, torch vs ORT fp32 ({len(prompts)} prompts)", identical,
+               f"= {len(prompts)}", identical == len(prompts), fmt="{:.0f}")
+    tj = [recover_from_ric(f, J) for f in decode_tokens(gen.backend, torch_tokens)]
+    oj = [recover_from_ric(f, J) for f in decode_tokens(fp32, ort_tokens)]
+    err_mm = max((np.abs(a - b).max() * 1000 if a.shape == b.shape else np.inf) for a, b in zip(tj, oj))
+    report.add("decoded joints, torch vs ORT fp32 (mm)", err_mm, f"< {th.joints_mm:g}", err_mm < th.joints_mm)
+    if int8 is None:
+        return
+    q_tokens = _ort_tokens(int8, prompts, seeds, gen.max_tokens)
+    agree = float(np.mean([_agreement(a, b) for a, b in zip(ort_tokens, q_tokens)]))
+    report.add("int8 vs fp32 token agreement", agree, f">= {th.int8_token_agreement:g}",
+               agree >= th.int8_token_agreement, fmt="{:.3f}")
+    # logit error with the fp32 tokens fed to both (teacher forcing), so one divergence does not compound
+    emb = fp32.encode_text(prompts[:1])
+    seq = ort_tokens[0]
+    tokens = np.concatenate([np.full((1, 1, seq.shape[1]), fp32.dims.bos_id), seq[None]], axis=1)
+    lf, _ = fp32.step(emb, tokens, fp32.empty_past(1))
+    lq, _ = int8.step(emb, tokens, int8.empty_past(1))
+    report.add("int8 vs fp32 step logits, max abs (teacher-forced)", float(np.abs(lf - lq).max()), "report", True)
+    qj = [recover_from_ric(f, J) for f in decode_tokens(int8, q_tokens)]
+    errs = [np.linalg.norm(a[:min(len(a), len(b))] - b[:min(len(a), len(b))], axis=-1).mean() * 1000
+            for a, b in zip(oj, qj)]
+    report.add("int8 vs fp32 decoded joints, mean per-joint error (mm)", float(np.mean(errs)), "report", True,
+               fmt="{:.1f}")
+    cos = float((fp32.encode_text(prompts) * int8.encode_text(prompts)).sum(-1).min())
+    report.add("int8 vs fp32 text embedding cosine (min)", cos, f">= {th.int8_text_cosine:g}",
+               cos >= th.int8_text_cosine, fmt="{:.4f}")
+
+
+def verify(bundle_path: str | Path, ckpt_dir: str | Path, th: Thresholds = Thresholds(), int8: bool = True,
+           prompts=PROMPTS) -> Report:
+    bundle = Bundle.load(bundle_path)
+    gen = TorchGenerator.from_checkpoints(ckpt_dir)
+    fp32 = OrtBackend(bundle, "fp32", threads=2)
+    q = OrtBackend(bundle, "int8", threads=2) if int8 and "int8" in bundle.variants else None
+    report = Report()
+    check_graphs(gen, fp32, report, th)
+    check_end_to_end(gen, fp32, q, report, th, prompts)
+    return report
