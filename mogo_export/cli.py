@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -44,6 +45,31 @@ def _verify(args) -> int:
     print(report.table())
     print("PASS" if report.ok else "FAIL: at least one check breached its bar")
     return 0 if report.ok else 1
+
+
+def _quality(args) -> int:
+    import json
+
+    from .quality import quality_report
+
+    report = quality_report(args.data, args.checkpoints, gif=args.gif)
+    print(json.dumps(report, indent=2))
+    return 0
+
+
+def _ablation(args) -> int:
+    """MoSA-VQ with and without learnable scaling: same preset, budget and seed; test-split MPJPE."""
+    from .quality import vq_reconstruction
+    from .train import train_vq
+
+    rows = {}
+    for name, scaling in (("with learnable scaling", True), ("without learnable scaling", False)):
+        out = args.out / ("scaling" if scaling else "no-scaling")
+        train_vq(args.data, out, args.preset, seed=args.seed, learnable_scaling=scaling)
+        rows[name] = vq_reconstruction(args.data, out / "vq.pt")
+    for name, r in rows.items():
+        print(f"{name:28s} MPJPE {r['mpjpe_mm']:.1f} mm   L1 {r['l1']:.4f}")
+    return 0
 
 
 def main(argv=None) -> int:
@@ -83,11 +109,26 @@ def main(argv=None) -> int:
     p.add_argument("--no-int8", action="store_true")
     p.set_defaults(run=_verify)
 
+    p = sub.add_parser("quality", help="VQ reconstruction, action accuracy and diversity of generated motion")
+    p.add_argument("--data", type=Path, required=True)
+    p.add_argument("--checkpoints", type=Path, required=True)
+    p.add_argument("--gif", type=Path, default=None, help="also write one generated motion per family here")
+    p.set_defaults(run=_quality)
+
+    p = sub.add_parser("ablation", help="MoSA-VQ with vs without learnable scaling (same budget and seed)")
+    p.add_argument("--data", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--preset", choices=["tiny", "base", "paper"], default="base")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(run=_ablation)
+
     args = ap.parse_args(argv)
     try:
         return args.run(args)
-    except (ValueError, FileNotFoundError, KeyError) as e:
-        print(f"mogo-export: error: {e}", file=sys.stderr)
+    except (ValueError, FileNotFoundError, KeyError) as e:  # bad input: a message, not a traceback
+        if os.environ.get("MOGO_DEBUG"):
+            raise
+        print(f"mogo-export: error: {e} (set MOGO_DEBUG=1 for the traceback)", file=sys.stderr)
         return 2
 
 

@@ -33,3 +33,18 @@ def humanml3d_fixture() -> Path:
     if not (FIXTURES / "Mean.npy").exists():
         raise FileNotFoundError(f"HumanML3D fixture missing at {FIXTURES}; tests expect ../shared beside the repo")
     return FIXTURES
+
+
+@pytest.fixture(scope="session")
+def tiny_bundle() -> Path:
+    """A trained tiny bundle (see tests/tiny_bundle.py); built in a subprocess, so usable with torch blocked."""
+    from tiny_bundle import ensure_tiny_bundle
+
+    return ensure_tiny_bundle()[1]
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoints() -> Path:
+    from tiny_bundle import ensure_tiny_bundle
+
+    return ensure_tiny_bundle()[0]

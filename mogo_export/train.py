@@ -1,0 +1,293 @@
+"""Training: MoSA-VQ on motion windows, token extraction, then the RQHC-Transformer on (caption, tokens).
+
+    python -m mogo_export.cli train --data data/procedural --out checkpoints/base --preset base
+
+writes `vq.pt`, `tokens.npz`, `captions.npz` (cached caption embeddings) and `transformer.pt` into --out.
+Each phase shows a progress bar (loss, throughput, ETA), validates periodically, checkpoints atomically, and
+resumes from its checkpoint after an interruption; a finished phase is skipped on the next run.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from mogo_runtime.features import recover_from_ric
+from mogo_runtime.skeleton import get_skeleton
+
+from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
+from .data.dataset import MotionDataset
+from .models import transformer as tmodel
+from .models import vq as vqmodel
+from .models.text_encoder import CachedTextEncoder, get_text_encoder
+
+
+@dataclass
+class Schedule:
+    steps: int            # optimiser steps
+    batch_size: int
+    lr: float
+    warmup: int = 200
+    val_every: int = 500
+    ckpt_every: int = 500
+    window: int = 64      # VQ only: frames per training crop
+
+    def lr_at(self, step: int) -> float:
+        if step < self.warmup:
+            return self.lr * (step + 1) / self.warmup
+        progress = (step - self.warmup) / max(1, self.steps - self.warmup)
+        return self.lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
+
+
+# Budgets per preset, sized so `base` trains both models on 2 CPU cores within the time in the README.
+SCHEDULES = {
+    "tiny": {"vq": Schedule(steps=60, batch_size=8, lr=1e-3, warmup=5, val_every=30, ckpt_every=30, window=16),
+             "transformer": Schedule(steps=60, batch_size=8, lr=1e-3, warmup=5, val_every=30, ckpt_every=30)},
+    "base": {"vq": Schedule(steps=3000, batch_size=32, lr=5e-4, window=64),
+             "transformer": Schedule(steps=4000, batch_size=32, lr=4e-4)},
+    "paper": {"vq": Schedule(steps=100_000, batch_size=256, lr=2e-4, window=64, val_every=2000, ckpt_every=2000),
+              "transformer": Schedule(steps=100_000, batch_size=256, lr=2e-4, val_every=2000, ckpt_every=2000)},
+}
+
+
+def _set_lr(opt, lr):
+    for g in opt.param_groups:
+        g["lr"] = lr
+
+
+def _resume(path: Path, kind: str, model, opt) -> tuple[int, np.random.Generator | None]:
+    """Restore model, optimiser and sampling RNG from an unfinished checkpoint; -> (next step, rng)."""
+    if not path.exists():
+        return 0, None
+    payload = read_checkpoint(path, kind)
+    model.load_state_dict(payload["model"])
+    train = payload["train"]
+    opt.load_state_dict(train["optimizer"])
+    torch.set_rng_state(train["torch_rng"])
+    rng = np.random.default_rng()
+    rng.bit_generator.state = train["numpy_rng"]
+    return int(train["step"]), rng
+
+
+def _train_state(step, opt, rng, done: bool) -> dict:
+    return {"step": step, "optimizer": opt.state_dict(), "torch_rng": torch.get_rng_state(),
+            "numpy_rng": rng.bit_generator.state, "done": done}
+
+
+def _is_done(path: Path, kind: str) -> bool:
+    return path.exists() and bool(read_checkpoint(path, kind)["train"].get("done"))
+
+
+# -----------------------------------------------------------------------------
+# MoSA-VQ
+
+def _crops(clips: list[np.ndarray], rng, batch: int, window: int) -> torch.Tensor:
+    out = np.empty((batch, window, clips[0].shape[1]), np.float32)
+    for i, c in enumerate(rng.integers(len(clips), size=batch)):
+        clip = clips[c]
+        start = rng.integers(len(clip) - window + 1)
+        out[i] = clip[start:start + window]
+    return torch.from_numpy(out)
+
+
+@torch.no_grad()
+def evaluate_vq(vq: vqmodel.MoSAVQ, clips: list[np.ndarray], mean: np.ndarray, std: np.ndarray,
+                num_joints: int = 22) -> dict:
+    """Reconstruction of whole clips: mean per-joint position error (mm) and normalised L1."""
+    vq.eval()
+    ds, errs, l1 = vq.cfg.downsample, [], []
+    for clip in clips:
+        T = len(clip) // ds * ds
+        x = torch.from_numpy(clip[None, :T])
+        recon = vq.decode_indices(vq.encode(x))[0].numpy()
+        l1.append(np.abs(recon - clip[:T]).mean())
+        gt = recover_from_ric(clip[:T] * std + mean, num_joints)
+        pred = recover_from_ric(recon * std + mean, num_joints)
+        errs.append(np.linalg.norm(gt - pred, axis=-1).mean() * 1000)
+    return {"mpjpe_mm": float(np.mean(errs)), "l1": float(np.mean(l1))}
+
+
+def train_vq(data: Path, out: Path, preset: str = "base", seed: int = 0, progress: bool = True,
+             schedule: Schedule | None = None, **overrides) -> Path:
+    path = out / "vq.pt"
+    if _is_done(path, "vq"):
+        print(f"vq: {path} is complete, skipping (delete it to retrain)")
+        return path
+    sched = schedule or SCHEDULES[preset]["vq"]
+    train_ds, val_ds = MotionDataset.load(data, "train"), MotionDataset.load(data, "val")
+    num_joints = get_skeleton(train_ds.skeleton).num_joints
+    cfg = vqmodel.preset(preset, input_dim=int(train_ds.mean.shape[0]), **overrides)
+    mean, std = train_ds.mean, train_ds.std
+    clips = [train_ds.normalize(it.features) for it in train_ds.items if len(it.features) >= sched.window]
+    val_clips = [val_ds.normalize(it.features) for it in val_ds.items][:64]
+    if not clips:
+        raise ValueError(f"{data}: no training clip has {sched.window} frames or more")
+
+    torch.manual_seed(seed)
+    vq = vqmodel.MoSAVQ(cfg)
+    opt = torch.optim.AdamW(vq.parameters(), lr=sched.lr, betas=(0.9, 0.99), weight_decay=0.0)
+    start, rng = _resume(path, "vq", vq, opt)
+    rng = rng or np.random.default_rng(seed)
+    meta = {"mean": mean.tolist(), "std": std.tolist(), "fps": train_ds.fps, "dataset": str(data), "preset": preset,
+            "skeleton": train_ds.skeleton}
+    bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc="vq", disable=not progress)
+    t0, frames = time.perf_counter(), 0
+    for step in bar:
+        vq.train()
+        _set_lr(opt, sched.lr_at(step))
+        x = _crops(clips, rng, sched.batch_size, sched.window)
+        _, terms = vq(x)
+        opt.zero_grad(set_to_none=True)
+        terms["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(vq.parameters(), 1.0)
+        opt.step()
+        frames += x.shape[0] * x.shape[1]
+        bar.set_postfix(loss=f"{terms['loss'].item():.4f}", rec=f"{terms['recon'].item():.4f}",
+                        ppl=f"{terms['perplexity'].mean().item():.0f}", fps=f"{frames / (time.perf_counter() - t0):.0f}")
+        last = step + 1 == sched.steps
+        if (step + 1) % sched.val_every == 0 or last:
+            meta["val"] = evaluate_vq(vq, val_clips, mean, std, num_joints)
+            bar.write(f"vq step {step + 1}: val MPJPE {meta['val']['mpjpe_mm']:.1f} mm, L1 {meta['val']['l1']:.4f}")
+        if (step + 1) % sched.ckpt_every == 0 or last:
+            save_checkpoint(path, "vq", cfg, vq, _train_state(step + 1, opt, rng, last), meta)
+    return path
+
+
+# -----------------------------------------------------------------------------
+# tokens and captions
+
+@torch.no_grad()
+def extract_tokens(data: Path, out: Path, progress: bool = True) -> Path:
+    """Run the trained VQ over every clip of every split once; the transformer trains on these."""
+    path = out / "tokens.npz"
+    vq, cfg, payload = build_from_checkpoint(out / "vq.pt", "vq", vqmodel.VQConfig, vqmodel.MoSAVQ)
+    if path.exists():
+        with np.load(path) as z:
+            if str(z["vq_step"]) == str(payload["train"]["step"]):
+                return path
+    arrays = {}
+    for split in ("train", "val", "test"):
+        ds = MotionDataset.load(data, split)
+        for it in tqdm(ds.items, desc=f"tokens {split}", disable=not progress):
+            T = len(it.features) // cfg.downsample * cfg.downsample
+            x = torch.from_numpy(ds.normalize(it.features[:T]))[None]
+            arrays[f"{split}/{it.clip_id}"] = vq.encode(x)[0].numpy().astype(np.int16)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, vq_step=np.array(payload["train"]["step"]), **arrays)
+    tmp.replace(path)
+    return path
+
+
+def _caption_table(data: Path, out: Path, encoder_name: str):
+    """All captions of all splits embedded once, cached on disk."""
+    encoder = CachedTextEncoder(get_text_encoder(encoder_name), out / "captions.npz")
+    table = {}
+    for split in ("train", "val", "test"):
+        for it in MotionDataset.load(data, split).items:
+            table[(split, it.clip_id)] = it.captions
+    flat = sorted({c for caps in table.values() for c in caps})
+    emb = dict(zip(flat, encoder.encode(flat).numpy()))
+    encoder.save()
+    return table, emb, encoder.dim
+
+
+# -----------------------------------------------------------------------------
+# RQHC-Transformer
+
+def _token_batch(seqs, caps, emb, rng, batch, cfg):
+    idx = rng.integers(len(seqs), size=batch)
+    lengths = np.array([len(seqs[i]) for i in idx])
+    S = lengths.max() + 1
+    L, K = cfg.num_levels, cfg.codebook_size
+    tin = np.full((batch, S, L), cfg.pad_id, np.int64)
+    tgt = np.full((batch, S, L), cfg.pad_id, np.int64)
+    text = np.empty((batch, cfg.text_dim), np.float32)
+    for b, i in enumerate(idx):
+        n = lengths[b]
+        tin[b, 0] = cfg.bos_id
+        tin[b, 1:n + 1] = seqs[i]
+        tgt[b, :n] = seqs[i]
+        tgt[b, n] = cfg.end_id
+        c = caps[i]
+        text[b] = emb[c[rng.integers(len(c))]]
+    return torch.from_numpy(text), torch.from_numpy(tin), torch.from_numpy(tgt), torch.from_numpy(lengths)
+
+
+# The tiny preset uses a small random text encoder so that tests export and run whole bundles in seconds.
+TEXT_ENCODERS = {"tiny": "tiny-random-bert"}
+
+
+def train_transformer(data: Path, out: Path, preset: str = "base", seed: int = 0, progress: bool = True,
+                      schedule: Schedule | None = None, text_encoder: str | None = None, **overrides) -> Path:
+    path = out / "transformer.pt"
+    if _is_done(path, "transformer"):
+        print(f"transformer: {path} is complete, skipping (delete it to retrain)")
+        return path
+    sched = schedule or SCHEDULES[preset]["transformer"]
+    text_encoder = text_encoder or TEXT_ENCODERS.get(preset, "all-MiniLM-L6-v2")
+    vq_payload = read_checkpoint(out / "vq.pt", "vq")
+    vq_cfg = vq_payload["config"]
+    table, emb, text_dim = _caption_table(data, out, text_encoder)
+    with np.load(extract_tokens(data, out, progress)) as z:
+        tokens = {k: z[k].astype(np.int64) for k in z.files if "/" in k}
+
+    def split(name):
+        keys = sorted(k for k in tokens if k.startswith(name + "/"))
+        return [tokens[k] for k in keys], [table[(name, k.split("/", 1)[1])] for k in keys]
+
+    seqs, caps = split("train")
+    val_seqs, val_caps = split("val")
+    max_tokens = max(len(s) for s in seqs)
+    cfg = tmodel.preset(preset, num_levels=vq_cfg["num_levels"], codebook_size=vq_cfg["codebook_size"],
+                        text_dim=text_dim, **overrides)
+    torch.manual_seed(seed)
+    model = tmodel.RQHCTransformer(cfg)
+    decay = [p for n, p in model.named_parameters() if p.dim() >= 2]
+    no_decay = [p for n, p in model.named_parameters() if p.dim() < 2]
+    opt = torch.optim.AdamW([{"params": decay, "weight_decay": 0.01}, {"params": no_decay, "weight_decay": 0.0}],
+                            lr=sched.lr, betas=(0.9, 0.99))
+    start, rng = _resume(path, "transformer", model, opt)
+    rng = rng or np.random.default_rng(seed)
+    val_rng = np.random.default_rng(seed + 1)
+    meta = {"text_encoder": text_encoder, "max_tokens": int(max_tokens * 1.25) + 1, "dataset": str(data),
+            "preset": preset, "vq_step": vq_payload["train"]["step"]}
+    bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc="transformer", disable=not progress)
+    t0, ntok = time.perf_counter(), 0
+    for step in bar:
+        model.train()
+        _set_lr(opt, sched.lr_at(step))
+        text, tin, tgt, lengths = _token_batch(seqs, caps, emb, rng, sched.batch_size, cfg)
+        loss, stats = model.loss(text, tin, tgt, lengths)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+        ntok += int((lengths + 1).sum()) * cfg.num_levels
+        bar.set_postfix(loss=f"{loss.item():.3f}", acc=f"{stats['acc'].item():.3f}",
+                        tok_s=f"{ntok / (time.perf_counter() - t0):.0f}")
+        last = step + 1 == sched.steps
+        if ((step + 1) % sched.val_every == 0 or last) and val_seqs:
+            model.eval()
+            with torch.no_grad():
+                vloss, vstats = model.loss(*_token_batch(val_seqs, val_caps, emb, val_rng, 64, cfg))
+            meta["val"] = {"loss": vloss.item(), "acc": vstats["acc"].item()}
+            bar.write(f"transformer step {step + 1}: val loss {vloss.item():.3f}, acc {vstats['acc'].item():.3f}")
+        if (step + 1) % sched.ckpt_every == 0 or last:
+            save_checkpoint(path, "transformer", cfg, model, _train_state(step + 1, opt, rng, last), meta)
+    return path
+
+
+def train_all(data: Path, out: Path, preset: str = "base", seed: int = 0, progress: bool = True) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    train_vq(data, out, preset, seed, progress)
+    t1 = time.perf_counter()
+    train_transformer(data, out, preset, seed, progress)
+    t2 = time.perf_counter()
+    print(f"trained {preset} in {out}: vq {t1 - t0:.0f} s, transformer {t2 - t1:.0f} s")
+    return out

@@ -1,0 +1,221 @@
+"""The `mogo` command: generate motion files, stream frames to a game, describe a bundle.
+
+    mogo generate "a person walks forward and then jumps" -o walk.bvh -o walk.gif --seconds 6 --seed 1
+    mogo stream "a person waves" --seed 2 | my_game        # one JSON line per frame on stdout
+    mogo info bundles/base                                  # graphs, variants, sizes, dims, verified hashes
+
+The bundle is `--bundle PATH`, else $MOGO_BUNDLE, else bundles/base. Bad input ends with one line on stderr
+starting with "mogo: error:" and exit status 2, as argparse does, never with a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from .bundle import GRAPHS, Bundle, BundleError, sha256_file
+from .motion import SAVE_FORMATS, check_output_path
+
+DEFAULT_BUNDLE = "bundles/base"
+EXIT_USAGE = 2
+JOINT_DECIMALS = 4     # metres: 0.1 mm
+
+
+class UsageError(Exception):
+    """Bad input from the user: reported as `mogo: error: ...`, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        raise UsageError(f"{message} (see `{self.prog} --help`)")
+
+
+def default_bundle() -> tuple[Path, bool]:
+    """The bundle to use when --bundle is not given, and whether it came from $MOGO_BUNDLE."""
+    env = os.environ.get("MOGO_BUNDLE")
+    return (Path(env), True) if env else (Path(DEFAULT_BUNDLE), False)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="mogo", description="Text to 3D human motion with a mogo bundle (onnxruntime, no torch).")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
+
+    def add_generation_args(p: argparse.ArgumentParser) -> None:
+        p.add_argument("text", help="what the person does, e.g. \"a person walks forward and then jumps\"")
+        p.add_argument("--bundle", type=Path, help=f"bundle folder (default: $MOGO_BUNDLE or {DEFAULT_BUNDLE})")
+        p.add_argument("--seconds", type=float, help="fixed length; default: the model decides when to stop")
+        p.add_argument("--seed", type=int, default=0, help="random seed; same seed, same motion (default 0)")
+        v = p.add_mutually_exclusive_group()
+        v.add_argument("--int8", action="store_const", const="int8", dest="variant",
+                       help="use the bundle's int8 graphs (faster on CPU)")
+        v.add_argument("--variant", dest="variant", help="bundle variant by name (default fp32)")
+        p.add_argument("--temperature", type=float, help="0 = greedy; default: the bundle's")
+        p.add_argument("--top-k", type=int, help="keep the k likeliest codes, 0 = all; default: the bundle's")
+        p.add_argument("--top-p", type=float, help="nucleus sampling mass in (0, 1]; default: the bundle's")
+        p.add_argument("--guidance", type=float, help="classifier-free guidance scale, 1 = off; default: the bundle's")
+        p.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+
+    gen = sub.add_parser("generate", help="write motion files (" + ", ".join(SAVE_FORMATS) + ")",
+                         description="Generate one motion and write it to every -o file (format by extension: "
+                                     + ", ".join(SAVE_FORMATS) + ").")
+    add_generation_args(gen)
+    gen.add_argument("-o", "--output", action="append", required=True, type=Path, metavar="FILE",
+                     help="output file, repeatable: walk.bvh, walk.gif, walk.json, walk.npy, walk.mp4")
+    gen.set_defaults(run=cmd_generate)
+
+    stream = sub.add_parser("stream", help="print one JSON line per frame as frames are decoded",
+                            description='One JSON object per line on stdout, flushed per frame: '
+                                        '{"frame": i, "time": seconds, "joints": [[x, y, z], ...]} '
+                                        '(metres, y up, joint order of the bundle\'s skeleton).')
+    add_generation_args(stream)
+    stream.set_defaults(run=cmd_stream)
+
+    info = sub.add_parser("info", help="what a bundle holds, and whether its files are intact")
+    info.add_argument("bundle", nargs="?", type=Path, help=f"bundle folder (default: $MOGO_BUNDLE or {DEFAULT_BUNDLE})")
+    info.set_defaults(run=cmd_info)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        return args.run(args)
+    except UsageError as e:
+        return _fail(str(e))
+    except (BundleError, ValueError, OSError) as e:  # BundleError and OutputError included
+        return _fail(str(e))
+    except KeyboardInterrupt:
+        print("mogo: interrupted", file=sys.stderr)
+        return 130
+
+
+def _fail(message: str) -> int:
+    print(f"mogo: error: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def _load_generator(args):
+    from .generator import MotionGenerator   # onnxruntime is imported only by commands that run graphs
+
+    path, from_env = (args.bundle, False) if args.bundle is not None else default_bundle()
+    try:
+        bundle = Bundle.load(path)
+    except BundleError as e:
+        if args.bundle is None and not path.exists():
+            where = "from $MOGO_BUNDLE" if from_env else "the default bundle path"
+            raise BundleError(f"{e} ({where}); pass --bundle PATH or set $MOGO_BUNDLE, or build bundles/base "
+                              f"with `make demo`") from None
+        raise
+    # no argparse default for --variant: argparse would then miss "--int8 --variant fp32" as a conflict
+    return MotionGenerator(bundle, variant=args.variant or "fp32", threads=args.threads)
+
+
+def _sampling(args) -> dict:
+    return {"temperature": args.temperature, "top_k": args.top_k, "top_p": args.top_p, "guidance": args.guidance}
+
+
+def _check_text(text: str) -> None:
+    if not text.strip():
+        raise UsageError(f"the text is empty or whitespace only ({text!r}); describe a motion, "
+                         f"e.g. \"a person walks forward\"")
+
+
+def cmd_generate(args) -> int:
+    _check_text(args.text)
+    for out in args.output:            # before any work: a typo should not cost a generation
+        check_output_path(out)
+    gen = _load_generator(args)
+    fixed = gen.tokens_for(args.seconds)
+    gen.sampling_config(**_sampling(args))
+    show = sys.stderr.isatty()
+
+    def progress(step: int, limit: int) -> None:
+        print(f"\rmogo: generating, token {step}/{limit}", end="", file=sys.stderr, flush=True)
+
+    start = time.perf_counter()
+    motion = gen.generate(args.text, seconds=args.seconds, seed=args.seed, progress=progress if show else None,
+                          **_sampling(args))
+    took = time.perf_counter() - start
+    if show:
+        print(file=sys.stderr)
+    if fixed:
+        ended = "fixed length"
+    else:
+        ended = "hit max length" if len(motion.tokens) == gen.max_tokens else "model ended it"
+    print(f"mogo: {motion.num_frames} frames, {motion.seconds:.2f} s ({ended}) in {took:.2f} s "
+          f"[{gen.variant}, seed {args.seed}]", file=sys.stderr)
+    for out in args.output:
+        print(f"wrote {motion.save(out)}")
+    return 0
+
+
+def cmd_stream(args) -> int:
+    _check_text(args.text)
+    gen = _load_generator(args)
+    frames = gen.stream(args.text, seconds=args.seconds, seed=args.seed, **_sampling(args))
+    out = sys.stdout
+    try:
+        for f in frames:
+            joints = [[round(float(c), JOINT_DECIMALS) for c in j] for j in f.joints]
+            out.write(json.dumps({"frame": f.index, "time": round(f.time, 6), "joints": joints},
+                                 separators=(",", ":")) + "\n")
+            out.flush()                   # a game reads the pipe frame by frame
+    except BrokenPipeError:
+        # The reader closed the pipe: it has what it wanted. Point stdout at devnull so the interpreter's
+        # final flush does not raise again.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, out.fileno())
+        os.close(devnull)
+    return 0
+
+
+def cmd_info(args) -> int:
+    path = args.bundle if args.bundle is not None else default_bundle()[0]
+    bundle = Bundle.load(path, verify_hashes=False, check_graphs=False)   # hashes are checked below, one by one
+    m = bundle.manifest
+    model, producer = m["model"], m.get("producer", {})
+    d = bundle.dims
+    print(f"bundle     {bundle.path.resolve()}")
+    made = {k: producer[k] for k in ("name", "version", "torch", "onnx", "onnxruntime", "opset", "created")
+            if k in producer}
+    print(f"schema     {m['schema']} v{m['schema_version']}; producer {_describe(made)}")
+    print(f"model      levels {d.num_levels}, codebook {d.codebook_size}, layers {model.get('n_layers')}, "
+          f"heads {model.get('n_heads')} x {model.get('head_dim')}, text_dim {d.text_dim}, "
+          f"latent_dim {model.get('latent_dim')}")
+    print(f"motion     {d.fps:g} fps, {d.downsample} frames/token, receptive field {d.receptive_field} tokens, "
+          f"max {model['max_tokens']} tokens ({model['max_tokens'] * d.downsample / d.fps:g} s)")
+    print(f"skeleton   {bundle.skeleton.name}, {bundle.skeleton.num_joints} joints, {d.feature_dim} features")
+    te = m.get("text_encoder", {})
+    print(f"text       {te.get('name')}, max_length {te.get('max_length')}, pooling {te.get('pooling')}")
+    print(f"sampling   {_describe(m.get('sampling_defaults', {}))}")
+    print("variants")
+    for v in bundle.variants:
+        files = [bundle.graph_file(g, v).name for g in GRAPHS]
+        print(f"  {v:<8} {_mb(bundle.total_bytes(v)):>9}  " + ", ".join(f"{g}={f}" for g, f in zip(GRAPHS, files)))
+    print("files")
+    failed = []
+    for name, entry in m["files"].items():
+        ok = sha256_file(bundle.path / name) == entry["sha256"]
+        failed += [] if ok else [name]
+        print(f"  {name:<28} {_mb(entry['bytes']):>9}  sha256 {entry['sha256'][:16]}  {'OK' if ok else 'FAILED'}")
+    if failed:
+        raise BundleError(f"{bundle.path}: {len(failed)} file(s) do not match their sha256 in manifest.json: "
+                          f"{', '.join(failed)} (corrupted or replaced; re-export or re-copy the bundle)")
+    bundle.check_graph_signatures()
+    print("graphs     inputs and outputs match the manifest")
+    return 0
+
+
+def _describe(d: dict) -> str:
+    return ", ".join(f"{k} {v}" for k, v in d.items()) or "(none)"
+
+
+def _mb(n: int) -> str:
+    return f"{n / 1e6:.2f} MB" if n >= 10_000 else f"{n} B"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,162 @@
+"""A generated motion and its files: `Motion.save(path)` by extension, and joints integrated frame by frame.
+
+    motion = generator.generate("a person walks forward", seconds=4, seed=1)
+    motion.save("walk.bvh")      # also .npy (joints), .json (joint positions), .gif / .mp4 (previews)
+
+Every file is written under a temporary name beside its target and renamed into place, so a reader (a game
+watching a folder, a crashed run) never sees half a file.
+"""
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO, Callable
+
+import numpy as np
+
+from .features import FeatureLayout
+from .skeleton import Skeleton
+
+SAVE_FORMATS = (".npy", ".json", ".bvh", ".gif", ".mp4")
+JSON_DECIMALS = 4   # metres: 0.1 mm, far below what a viewer or a game can show, and keeps files small
+
+
+class OutputError(OSError):
+    """A file cannot be written where it was asked to go (missing permission, a parent that is a file...)."""
+
+
+@dataclass
+class Motion:
+    text: str
+    features: np.ndarray          # (T, D) de-normalised HumanML3D-style features
+    joints: np.ndarray            # (T, J, 3) metres, y up
+    fps: float
+    tokens: np.ndarray            # (T / downsample, L) the motion tokens of every quantizer level
+    skeleton: Skeleton
+    seed: int
+    aligned_text: str | None = None   # the prompt after test-time text alignment (the paper's TCA), if any
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.joints.shape[0])
+
+    @property
+    def seconds(self) -> float:
+        return self.num_frames / self.fps
+
+    def to_dict(self) -> dict:
+        """The `.json` file's content: fps, skeleton, joint positions per frame (metres, 0.1 mm)."""
+        return {
+            "text": self.text,
+            "aligned_text": self.aligned_text,
+            "seed": int(self.seed),
+            "fps": float(self.fps),
+            "num_frames": self.num_frames,
+            "skeleton": self.skeleton.to_dict(),
+            "frames": np.round(np.asarray(self.joints, np.float64), JSON_DECIMALS).tolist(),
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write the motion in the format its extension names (see SAVE_FORMATS); returns the path."""
+        path = Path(path)
+        suffix = check_output_path(path)
+        if suffix == ".npy":
+            _write_atomic(path, lambda f: np.save(f, np.asarray(self.joints, np.float32), allow_pickle=False))
+        elif suffix == ".json":
+            data = json.dumps(self.to_dict(), separators=(",", ":")).encode()
+            _write_atomic(path, lambda f: f.write(data))
+        elif suffix == ".bvh":   # the writers below replace their file atomically themselves
+            from .bvh import write_bvh
+            write_bvh(path, self.joints, self.skeleton, fps=self.fps)
+        elif suffix == ".gif":
+            from .preview import render_gif
+            render_gif(path, self.joints, self.skeleton, fps=self.fps, title=self.text)
+        else:  # .mp4
+            from .preview import render_mp4
+            render_mp4(path, self.joints, self.skeleton, fps=self.fps, title=self.text)
+        return path
+
+
+def check_output_path(path: str | Path) -> str:
+    """Fail before any work is done: unknown extension (ValueError) or a file that cannot be written here
+    (OutputError: unwritable folder, a folder in the way, .mp4 without ffmpeg).
+
+    Returns the lower-case extension. Creates missing parent folders, as `save` would.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in SAVE_FORMATS:
+        raise ValueError(f"{path}: unknown output format {path.suffix or '(no extension)'!r}; "
+                         f"supported: {', '.join(SAVE_FORMATS)}")
+    if suffix == ".mp4" and shutil.which("ffmpeg") is None:
+        raise OutputError(f"{path}: writing .mp4 needs the ffmpeg program on PATH and there is none; "
+                          f"install ffmpeg or write a .gif preview instead")
+    if path.is_dir():
+        raise OutputError(f"{path}: is a folder; give a file name ending in {suffix}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"{path}: cannot create its folder {path.parent} ({e.strerror or e})") from None
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise OutputError(f"{path}: folder {path.parent} is not writable")
+    return suffix
+
+
+def _write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
+    """Write through a fresh temporary name beside `path`, then rename it into place."""
+    # Not mkstemp: its 0600 mode would stick to the final file; open(..., "xb") gets the usual umask.
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    try:
+        with open(tmp, "xb") as f:
+            write(f)
+        os.replace(tmp, path)
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write it ({e.strerror or e})") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+class RootIntegrator:
+    """`features.recover_from_ric` one frame at a time, for streaming: the same joints, frame for frame.
+
+    A frame's root heading and xz position integrate the *previous* frames' velocities (features 0-2),
+    so the running heading and position are all the state there is. float64 throughout, as recover_from_ric.
+    """
+
+    def __init__(self, num_joints: int):
+        self.layout = FeatureLayout(num_joints)
+        self.num_joints = num_joints
+        self.angle = 0.0                      # half-angle of the root's facing about y, as in the features
+        self.position = np.zeros(2)           # root x, z
+        self.previous: np.ndarray | None = None   # (rot_vel, vel_x, vel_z) of the last frame seen
+
+    def push(self, features: np.ndarray) -> np.ndarray:
+        """features (n, D) of the next n frames -> joints (n, J, 3), in the features' float dtype."""
+        x = np.asarray(features)
+        if x.ndim != 2 or x.shape[1] != self.layout.dim:
+            raise ValueError(f"RootIntegrator.push wants (n, {self.layout.dim}) features, got {x.shape}")
+        out_dtype = x.dtype if x.dtype.kind == "f" else np.float32
+        x64 = x.astype(np.float64)
+        J = self.num_joints
+        joints = np.empty((len(x), J, 3))
+        for i, frame in enumerate(x64):
+            if self.previous is not None:
+                rot_vel, vx, vz = self.previous
+                self.angle += rot_vel
+                c, s = np.cos(self.angle), np.sin(self.angle)
+                # qrot(qinv(q(angle)), v) for v = (vx, 0, vz): a rotation by -2*angle about y
+                cos2, sin2 = c * c - s * s, 2 * c * s
+                self.position += (cos2 * vx - sin2 * vz, sin2 * vx + cos2 * vz)
+            c, s = np.cos(self.angle), np.sin(self.angle)
+            cos2, sin2 = c * c - s * s, 2 * c * s
+            ric = frame[4:4 + (J - 1) * 3].reshape(J - 1, 3)
+            joints[i, 0] = (self.position[0], frame[3], self.position[1])
+            joints[i, 1:, 0] = cos2 * ric[:, 0] - sin2 * ric[:, 2] + self.position[0]
+            joints[i, 1:, 1] = ric[:, 1]
+            joints[i, 1:, 2] = sin2 * ric[:, 0] + cos2 * ric[:, 2] + self.position[1]
+            self.previous = frame[:3].copy()
+        return joints.astype(out_dtype)

@@ -1,0 +1,210 @@
+"""A hand-built mogo bundle (onnx.helper graphs, no torch) that follows docs/bundle.md, for the generator tests.
+
+Small and random but honest to the contract: a 2-layer step graph whose logits depend on the text, on every
+cached token (through the presents it concatenates) and on the number of steps (END grows likelier), a
+codebook lookup, and a causal decoder (receptive field 2) whose output sits around HumanML3D's mean pose, so
+joints, BVH and previews look like a person. The int8 variant is `quantize_dynamic` of the step graph.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
+
+from mogo_runtime.features import FeatureLayout
+from mogo_runtime.skeleton import HUMANML3D
+from mogo_runtime.text import TokenizerSettings, configure_tokenizer
+
+WORDS = ["a", "person", "walks", "forward", "waves", "hand", "jumps", "twice", "left", "right", "runs", "sits",
+         "down", "turns", "around", "and", "then", "kicks"]
+VOCAB = {"[PAD]": 0, "[UNK]": 1, "[CLS]": 2, "[SEP]": 3, **{w: i + 4 for i, w in enumerate(WORDS)}}
+L, K, N_LAYERS, N_HEADS, HEAD_DIM = 2, 16, 2, 1, 4
+TEXT_DIM, LATENT, DOWNSAMPLE, RECEPTIVE, FPS, MAX_TOKENS, MAX_LEN = 8, 6, 4, 2, 20.0, 24, 12
+D = FeatureLayout.for_skeleton(HUMANML3D).dim
+OPSET, IR = 18, 10   # onnx 1.23 stamps IR 14 by default; onnxruntime 1.31 loads at most IR 13
+
+
+def _model(nodes, name, inputs, outputs, inits, meta) -> onnx.ModelProto:
+    graph = helper.make_graph(nodes, name, inputs, outputs, [numpy_helper.from_array(v, k) for k, v in inits.items()])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], ir_version=IR)
+    helper.set_model_props(model, meta)
+    onnx.checker.check_model(model, full_check=True)
+    return model
+
+
+def _vi(name, dtype, shape):
+    return helper.make_tensor_value_info(name, TensorProto.FLOAT if dtype == "float32" else TensorProto.INT64, shape)
+
+
+def _io(specs):
+    return [_vi(s["name"], s["dtype"], s["shape"]) for s in specs]
+
+
+def graph_specs() -> dict:
+    cache = ["batch", L * N_HEADS, "past", HEAD_DIM]
+    present = ["batch", L * N_HEADS, "past_plus_steps", HEAD_DIM]
+    step_in = [{"name": "text_embedding", "dtype": "float32", "shape": ["batch", TEXT_DIM]},
+               {"name": "tokens", "dtype": "int64", "shape": ["batch", "steps", L]}]
+    step_out = [{"name": "logits", "dtype": "float32", "shape": ["batch", "steps", L, K + 1]}]
+    for i in range(N_LAYERS):
+        for kv in ("key", "value"):
+            step_in.append({"name": f"past_key_values.{i}.{kv}", "dtype": "float32", "shape": cache})
+            step_out.append({"name": f"present.{i}.{kv}", "dtype": "float32", "shape": present})
+    return {
+        "text_encoder": {"inputs": [{"name": "input_ids", "dtype": "int64", "shape": ["batch", "seq"]},
+                                    {"name": "attention_mask", "dtype": "int64", "shape": ["batch", "seq"]}],
+                         "outputs": [{"name": "text_embedding", "dtype": "float32", "shape": ["batch", TEXT_DIM]}]},
+        "step": {"inputs": step_in, "outputs": step_out},
+        "lookup": {"inputs": [{"name": "tokens", "dtype": "int64", "shape": ["batch", "tokens", L]}],
+                   "outputs": [{"name": "latent", "dtype": "float32", "shape": ["batch", "tokens", LATENT]}]},
+        "decoder": {"inputs": [{"name": "latent", "dtype": "float32", "shape": ["batch", "tokens", LATENT]}],
+                    "outputs": [{"name": "features", "dtype": "float32", "shape": ["batch", "frames", D]}]},
+    }
+
+
+def text_encoder(rng, spec) -> onnx.ModelProto:
+    nodes = [
+        helper.make_node("Gather", ["table", "input_ids"], ["h"]),                     # (N, S, E)
+        helper.make_node("Cast", ["attention_mask"], ["m"], to=TensorProto.FLOAT),     # (N, S)
+        helper.make_node("Unsqueeze", ["m", "axis_last"], ["m3"]),                    # (N, S, 1)
+        helper.make_node("Mul", ["h", "m3"], ["hm"]),
+        helper.make_node("ReduceSum", ["hm", "axis_seq"], ["s"], keepdims=0),          # (N, E)
+        helper.make_node("ReduceSum", ["m3", "axis_seq"], ["n"], keepdims=0),          # (N, 1)
+        helper.make_node("Div", ["s", "n"], ["mean"]),
+        helper.make_node("ReduceL2", ["mean", "axis_last"], ["norm"], keepdims=1),
+        helper.make_node("Div", ["mean", "norm"], ["text_embedding"]),
+    ]
+    inits = {"table": rng.standard_normal((len(VOCAB), TEXT_DIM)).astype(np.float32),
+             "axis_last": np.array([-1], np.int64), "axis_seq": np.array([1], np.int64)}
+    return _model(nodes, "toy_text_encoder", _io(spec["inputs"]), _io(spec["outputs"]), inits,
+                  {"encoder": "toy", "dim": str(TEXT_DIM), "pooling": "mean", "normalized": "true",
+                   "max_length": str(MAX_LEN)})
+
+
+def step(rng, spec) -> onnx.ModelProto:
+    nodes, inits = [], {"axis_time": np.array([2], np.int64), "axis_step": np.array([1], np.int64),
+                        "half": np.array(0.5, np.float32), "level_logits": np.array([0, L, K + 1], np.int64)}
+    inits["w_text"] = (2.0 * rng.standard_normal((TEXT_DIM, L * (K + 1)))).astype(np.float32)
+    nodes += [helper.make_node("MatMul", ["text_embedding", "w_text"], ["zt"]),
+              helper.make_node("Reshape", ["zt", "level_logits"], ["z_text"])]       # (B, L, K + 1)
+    terms = ["z_text"]
+    for i in range(N_LAYERS):
+        table = rng.standard_normal((K + 3, HEAD_DIM)).astype(np.float32)
+        w = (0.7 * rng.standard_normal((HEAD_DIM, K + 1))).astype(np.float32)
+        if i == 0:   # channel 0 counts the steps taken: END (column K) grows likelier with every step
+            table[:, 0] = 1.0
+            w[0, :] = 0.0
+            w[0, K] = 0.25
+        inits[f"table{i}"], inits[f"w{i}"] = table, w
+        nodes += [
+            helper.make_node("Gather", [f"table{i}", "tokens"], [f"e{i}"]),                  # (B, S, L, Dh)
+            helper.make_node("Transpose", [f"e{i}"], [f"kv{i}"], perm=[0, 2, 1, 3]),          # (B, L, S, Dh)
+            helper.make_node("Mul", [f"kv{i}", "half"], [f"v{i}"]),
+            helper.make_node("Concat", [f"past_key_values.{i}.key", f"kv{i}"], [f"present.{i}.key"], axis=2),
+            helper.make_node("Concat", [f"past_key_values.{i}.value", f"v{i}"], [f"present.{i}.value"], axis=2),
+            helper.make_node("ReduceSum", [f"present.{i}.key", "axis_time"], [f"h{i}"], keepdims=0),  # (B, L, Dh)
+            helper.make_node("MatMul", [f"h{i}", f"w{i}"], [f"z{i}"]),                        # (B, L, K + 1)
+        ]
+        terms.append(f"z{i}")
+    nodes += [helper.make_node("Sum", terms, ["z"]),
+              helper.make_node("Unsqueeze", ["z", "axis_step"], ["logits"])]                # (B, 1, L, K + 1)
+    return _model(nodes, "toy_step", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "step"})
+
+
+def lookup(rng, spec) -> onnx.ModelProto:
+    inits = {"codes": rng.standard_normal((L * K, LATENT)).astype(np.float32),
+             "level_offset": (np.arange(L) * K).astype(np.int64), "axis_level": np.array([2], np.int64)}
+    nodes = [helper.make_node("Add", ["tokens", "level_offset"], ["flat"]),
+             helper.make_node("Gather", ["codes", "flat"], ["per_level"]),                   # (B, T, L, C)
+             helper.make_node("ReduceSum", ["per_level", "axis_level"], ["latent"], keepdims=0)]
+    return _model(nodes, "toy_lookup", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "lookup"})
+
+
+def _noise_scale() -> np.ndarray:
+    """(D,) how far the toy decoder strays from the mean pose: the root moves freely, the body stays near
+    rigid (bone lengths vary by millimetres), so BVH files of toy motions reproduce them closely."""
+    scale = np.full(D, 0.002)
+    scale[:3] = 0.02                        # root yaw velocity and xz velocity (height stays near the mean)
+    return scale
+
+
+def decoder(rng, spec, mean: np.ndarray) -> onnx.ModelProto:
+    inits = {"pads": np.array([0, 0, RECEPTIVE, 0, 0, 0], np.int64),
+             "conv": (0.5 * rng.standard_normal((LATENT, LATENT, RECEPTIVE + 1))).astype(np.float32),
+             "w_out": (rng.standard_normal((LATENT, DOWNSAMPLE, D)) * _noise_scale()).reshape(LATENT, -1)
+             .astype(np.float32),
+             "bias": np.tile(mean.astype(np.float32), DOWNSAMPLE),
+             "frames_shape": np.array([0, -1, D], np.int64)}
+    nodes = [helper.make_node("Transpose", ["latent"], ["x"], perm=[0, 2, 1]),                # (B, C, T)
+             helper.make_node("Pad", ["x", "pads"], ["xp"]),                                  # causal: left only
+             helper.make_node("Conv", ["xp", "conv"], ["y"]),                                 # (B, C, T)
+             helper.make_node("Tanh", ["y"], ["ya"]),
+             helper.make_node("Transpose", ["ya"], ["yt"], perm=[0, 2, 1]),                   # (B, T, C)
+             helper.make_node("MatMul", ["yt", "w_out"], ["o"]),
+             helper.make_node("Add", ["o", "bias"], ["ob"]),                                  # (B, T, ds * D)
+             helper.make_node("Reshape", ["ob", "frames_shape"], ["features"])]               # (B, T * ds, D)
+    return _model(nodes, "toy_decoder", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "decoder"})
+
+
+def tokenizer() -> Tokenizer:
+    tok = Tokenizer(models.WordLevel(VOCAB, unk_token="[UNK]"))
+    tok.normalizer = normalizers.Lowercase()
+    tok.pre_tokenizer = pre_tokenizers.Whitespace()
+    tok.post_processor = processors.TemplateProcessing(single="[CLS] $A [SEP]",
+                                                       special_tokens=[("[CLS]", 2), ("[SEP]", 3)])
+    return configure_tokenizer(tok, TokenizerSettings(max_length=MAX_LEN))
+
+
+def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = True) -> Path:
+    """Write a complete bundle to `out` (graphs, tokenizer.json, manifest.json with sizes and hashes)."""
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    specs = graph_specs()
+    onnx.save(text_encoder(rng, specs["text_encoder"]), out / "text_encoder.onnx")
+    onnx.save(step(rng, specs["step"]), out / "step.onnx")
+    onnx.save(lookup(rng, specs["lookup"]), out / "lookup.onnx")
+    onnx.save(decoder(rng, specs["decoder"], mean), out / "decoder.onnx")
+    tokenizer().save(str(out / "tokenizer.json"))
+    fp32 = {g: {"file": f"{g}.onnx", "quantization": None} for g in specs}
+    variants = {"fp32": fp32}
+    if int8:
+        quantize_dynamic(str(out / "step.onnx"), str(out / "step.int8.onnx"), weight_type=QuantType.QInt8)
+        variants["int8"] = {**fp32, "step": {"file": "step.int8.onnx",
+                                             "quantization": {"method": "dynamic", "weight_type": "QInt8"}}}
+    files = {}
+    for p in sorted(out.iterdir()):
+        if p.is_file() and p.name != "manifest.json":
+            files[p.name] = {"bytes": p.stat().st_size, "sha256": hashlib.sha256(p.read_bytes()).hexdigest()}
+    manifest = {
+        "schema": "mogo-bundle", "schema_version": 1,
+        "producer": {"name": "tests/runtime/toy_bundle.py", "onnx": onnx.__version__, "opset": OPSET},
+        "model": {"num_levels": L, "codebook_size": K, "end_id": K, "bos_id": K + 1, "pad_id": K + 2,
+                  "n_layers": N_LAYERS, "n_heads": N_HEADS, "head_dim": HEAD_DIM, "d_model": N_HEADS * HEAD_DIM,
+                  "text_dim": TEXT_DIM, "max_rel_dist": 64, "downsample": DOWNSAMPLE, "fps": FPS,
+                  "receptive_field": RECEPTIVE, "feature_dim": D, "latent_dim": LATENT, "max_tokens": MAX_TOKENS},
+        "skeleton": HUMANML3D.to_dict(),
+        "features": FeatureLayout.for_skeleton(HUMANML3D).to_dict(),
+        "normalization": "decoder-output-denormalised",
+        "text_encoder": {"name": "toy", "max_length": MAX_LEN, "pooling": "mean", "tokenizer": "tokenizer.json"},
+        "sampling_defaults": {"temperature": 1.0, "top_k": None, "top_p": 0.95, "guidance": 1.0},
+        "graphs": specs,
+        "variants": variants,
+        "files": files,
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    return out
+
+
+@pytest.fixture(scope="session")
+def toy_bundle(tmp_path_factory, humanml3d_fixture) -> Path:
+    """Path of a freshly built toy bundle (about 0.2 s); import this fixture into a test module to use it."""
+    return build_toy_bundle(tmp_path_factory.mktemp("toy_bundle"), np.load(humanml3d_fixture / "Mean.npy"))
