@@ -125,7 +125,11 @@ def extract_features(joints: np.ndarray, skeleton: Skeleton = HUMANML3D, feet_th
     # HumanML3D quirk: root velocity is rotated by the *next* frame's facing, joint velocities by the current one
     root_vel = qrot(r_rot[1:], pos[1:, 0] - pos[:-1, 0])  # (T-1, 3)
     r_velocity = qmul(r_rot[1:], qinv(r_rot[:-1]))  # (T-1, 4) rotation about y
-    rot_vel = np.arcsin(np.clip(r_velocity[:, 2:3], -1.0, 1.0))  # half-angle, as recover_root_rot_pos expects
+    # HumanML3D takes arcsin of y alone; where the facing quaternion changes sign between frames (the smoothed
+    # heading crossing 180 degrees from frame 0) that flips the sign of the turn and recover_from_ric then
+    # misses the joints by up to 0.4 m. q and -q are the same rotation, so take the one with w >= 0 first.
+    sign = np.where(r_velocity[:, :1] < 0, -1.0, 1.0)
+    rot_vel = np.arcsin(np.clip(sign * r_velocity[:, 2:3], -1.0, 1.0))  # half-angle, as recover_root_rot_pos expects
 
     ric = pos.copy()
     ric[..., [0, 2]] -= pos[:, :1, [0, 2]]

@@ -1,0 +1,171 @@
+"""Loader for the HumanML3D / KIT-ML folder layout (which the procedural dataset also writes).
+
+    root/
+      train.txt val.txt test.txt   clip ids, one per line
+      new_joint_vecs/<id>.npy      (T, D) features, D = 263 (HumanML3D) or 251 (KIT-ML)
+      texts/<id>.txt               lines `caption#word/POS ...#start#end`
+      labels/<id>.txt              optional: an action label (the procedural dataset writes these)
+      Mean.npy Std.npy             (D,) feature statistics
+
+As in T2M's Text2MotionDataset: a caption with start = end = 0 describes the whole clip; one with a
+time span describes frames [start * fps, end * fps) only, which become an item of their own; items
+shorter than `min_frames` or not shorter than `max_frames` are dropped. Unlike T2M, every problem with
+the files is an error naming the file, not a silent skip.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator, NamedTuple
+
+import numpy as np
+
+from mogo_runtime.features import FeatureLayout, denormalize as _denormalize, load_mean_std, normalize as _normalize
+from mogo_runtime.skeleton import get_skeleton
+
+SPLITS = ("train", "val", "test")
+# T2M's minimum motion lengths (frames); both datasets keep clips shorter than 200 frames
+MIN_FRAMES = {"humanml3d": 40, "kit": 24}
+MAX_FRAMES = 200
+
+
+class MotionItem(NamedTuple):
+    clip_id: str                 # "<id>" for a whole clip, "<id>:<first>-<stop>" for a captioned span
+    features: np.ndarray         # (T, D) float32, not normalised
+    captions: list[str]
+    label: str | None
+
+
+class Caption(NamedTuple):
+    text: str
+    tokens: list[str]            # "word/POS"
+    start: float                 # seconds; start = end = 0 means the whole clip
+    end: float
+
+
+def parse_caption_line(line: str, where: str) -> Caption:
+    """One `caption#tokens#start#end` line; `where` (file:line) names it in errors."""
+    parts = line.rstrip("\n").split("#")
+    if len(parts) < 4:
+        raise ValueError(f"{where}: expected 'caption#tokens#start#end', got {line.strip()!r}")
+    text, tokens, start, end = parts[0].strip(), parts[1].split(), parts[2], parts[3]
+    if not text:
+        raise ValueError(f"{where}: empty caption")
+    try:
+        t0, t1 = float(start), float(end)
+    except ValueError:
+        raise ValueError(f"{where}: start/end must be numbers, got {start!r} and {end!r}") from None
+    # T2M reads NaN tags as 0.0 (whole clip); a few HumanML3D lines have them
+    t0 = 0.0 if math.isnan(t0) else t0
+    t1 = 0.0 if math.isnan(t1) else t1
+    return Caption(text, tokens, t0, t1)
+
+
+def read_captions(path: Path) -> list[Caption]:
+    if not path.is_file():
+        raise FileNotFoundError(f"caption file missing: {path}")
+    lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip()]
+    if not lines:
+        raise ValueError(f"{path}: no captions")
+    return [parse_caption_line(ln, f"{path}:{i + 1}") for i, ln in enumerate(lines)]
+
+
+def read_features(path: Path, dim: int, dataset: str) -> np.ndarray:
+    if not path.is_file():
+        raise FileNotFoundError(f"features file missing: {path}")
+    x = np.load(path, allow_pickle=False)
+    if x.ndim != 2 or x.shape[1] != dim:
+        raise ValueError(f"{path}: expected (T, {dim}) features for {dataset}, got shape {x.shape}")
+    if not np.all(np.isfinite(x)):
+        bad = int(np.argwhere(~np.isfinite(x))[0, 0])
+        raise ValueError(f"{path}: contains NaN or inf (first at frame {bad})")
+    return x.astype(np.float32, copy=False)
+
+
+def read_split(root: Path, split: str) -> list[str]:
+    if split not in SPLITS:
+        raise ValueError(f"unknown split {split!r}; expected one of {SPLITS}")
+    path = root / f"{split}.txt"
+    if not path.is_file():
+        raise FileNotFoundError(f"split file missing: {path}")
+    ids = [ln.strip() for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip()]
+    if not ids:
+        raise ValueError(f"{path}: lists no clips")
+    return ids
+
+
+@dataclass
+class MotionDataset:
+    root: Path
+    split: str
+    skeleton: str
+    fps: float
+    mean: np.ndarray             # (D,) float32
+    std: np.ndarray
+    items: list[MotionItem] = field(default_factory=list)
+
+    @classmethod
+    def load(cls, root, split: str = "train", skeleton: str = "humanml3d", min_frames: int | None = None,
+             max_frames: int = MAX_FRAMES) -> "MotionDataset":
+        """Read one split. Keeps items with min_frames <= T < max_frames (T2M's rule; min_frames defaults to
+        40 for humanml3d, 24 for kit)."""
+        root = Path(root)
+        if not root.is_dir():
+            raise FileNotFoundError(f"dataset folder not found: {root}")
+        skel = get_skeleton(skeleton)
+        dim = FeatureLayout.for_skeleton(skel).dim
+        min_frames = MIN_FRAMES[skel.name] if min_frames is None else int(min_frames)
+        mean, std = load_mean_std(root, dim)
+        labels_dir = root / "labels"
+        ids = read_split(root, split)
+
+        items: list[MotionItem] = []
+        for clip_id in ids:
+            feat_path = root / "new_joint_vecs" / f"{clip_id}.npy"
+            if not feat_path.is_file():
+                raise FileNotFoundError(f"{root / (split + '.txt')} lists {clip_id!r} but {feat_path} does not exist")
+            features = read_features(feat_path, dim, skel.name)
+            captions = read_captions(root / "texts" / f"{clip_id}.txt")
+            label = None
+            label_path = labels_dir / f"{clip_id}.txt"
+            if label_path.is_file():
+                label = label_path.read_text(encoding="utf-8").strip() or None
+
+            whole, spans = [], {}
+            for c in captions:
+                if c.start == 0.0 and c.end == 0.0:
+                    whole.append(c.text)
+                else:
+                    span = (int(c.start * skel.fps), int(c.end * skel.fps))
+                    spans.setdefault(span, []).append(c.text)
+            if whole and min_frames <= len(features) < max_frames:
+                items.append(MotionItem(clip_id, features, whole, label))
+            for (a, b), texts in spans.items():
+                part = features[a:b]
+                if min_frames <= len(part) < max_frames:
+                    items.append(MotionItem(f"{clip_id}:{a}-{b}", part, texts, label))
+        if not items:
+            raise ValueError(f"{root / (split + '.txt')}: no clip of {len(ids)} has {min_frames} <= frames < "
+                             f"{max_frames}")
+        return cls(root, split, skel.name, skel.fps, mean, std, items)
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, i: int) -> MotionItem:
+        return self.items[i]
+
+    def __iter__(self) -> Iterator[MotionItem]:
+        return iter(self.items)
+
+    @property
+    def labels(self) -> list[str | None]:
+        return [it.label for it in self.items]
+
+    def normalize(self, features: np.ndarray) -> np.ndarray:
+        """(features - Mean) / Std, with this dataset's statistics."""
+        return _normalize(features, self.mean, self.std)
+
+    def denormalize(self, features: np.ndarray) -> np.ndarray:
+        return _denormalize(features, self.mean, self.std)

@@ -1,0 +1,141 @@
+"""MotionDataset: the HumanML3D / KIT-ML folder layout, sub-clip captions, and errors that name the file."""
+import numpy as np
+import pytest
+
+from mogo_export.data import procedural as P
+from mogo_export.data.dataset import MotionDataset, parse_caption_line
+
+LINE = "a person walks forward.#a/DET person/NOUN walk/VERB forward/ADV#0.0#0.0"
+
+
+def write_dataset(root, clips, dim=263, splits=None, stats=True):
+    """clips: {id: (features or None, caption lines or None, label or None)}; splits: {name: [ids]}."""
+    for sub in ("new_joint_vecs", "texts", "labels"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    for cid, (feat, lines, label) in clips.items():
+        if feat is not None:
+            np.save(root / "new_joint_vecs" / f"{cid}.npy", feat)
+        if lines is not None:
+            (root / "texts" / f"{cid}.txt").write_text("\n".join(lines) + "\n")
+        if label is not None:
+            (root / "labels" / f"{cid}.txt").write_text(label + "\n")
+    for name, ids in (splits or {"train": list(clips)}).items():
+        (root / f"{name}.txt").write_text("\n".join(ids) + "\n")
+    if stats:
+        np.save(root / "Mean.npy", np.zeros(dim, np.float32))
+        np.save(root / "Std.npy", np.full(dim, 2.0, np.float32))
+    return root
+
+
+def feats(t, dim=263, seed=0):
+    return np.random.default_rng(seed).standard_normal((t, dim)).astype(np.float32)
+
+
+def test_loads_the_procedural_dataset(tmp_path):
+    root = P.build_dataset(tmp_path / "proc", num_clips=12, seed=2, progress=False, workers=1)
+    sizes = {}
+    for split in ("train", "val", "test"):
+        ds = MotionDataset.load(root, split)
+        ids = (root / f"{split}.txt").read_text().split()
+        assert [it.clip_id for it in ds] == ids  # every procedural clip has 40..199 feature frames
+        sizes[split] = len(ds)
+        for clip_id, x, caps, label in ds:
+            assert x.dtype == np.float32 and x.shape[1] == 263
+            np.testing.assert_array_equal(x, np.load(root / "new_joint_vecs" / f"{clip_id}.npy"))
+            assert len(caps) >= 3 and all(c.endswith(".") for c in caps)
+            assert label == (root / "labels" / f"{clip_id}.txt").read_text().strip()
+    assert sizes == {"train": 9, "val": 2, "test": 1}  # 80/15/5, but no split left empty
+    ds = MotionDataset.load(root, "train")
+    np.testing.assert_array_equal(ds.mean, np.load(root / "Mean.npy"))
+    x = ds[0].features
+    np.testing.assert_allclose(ds.normalize(x), (x - ds.mean) / ds.std, rtol=1e-6)
+    np.testing.assert_allclose(ds.denormalize(ds.normalize(x)), x, atol=1e-5)
+
+
+def test_subclip_captions_become_their_own_items(tmp_path):
+    x = feats(120)
+    lines = [LINE, "a person jumps.#a/DET person/NOUN jump/VERB#1.0#4.5", "someone hops.#x/X#1.0#4.5",
+             "a person stops.#x/X#5.0#5.5", "a person waves.#x/X#nan#nan"]
+    root = write_dataset(tmp_path, {"000001": (x, lines, "walk")})
+    ds = MotionDataset.load(root)
+    assert [it.clip_id for it in ds] == ["000001", "000001:20-90"]  # 5.0-5.5 s is 10 frames: too short
+    whole, part = ds
+    assert whole.captions == ["a person walks forward.", "a person waves."]  # NaN tags read as the whole clip
+    assert part.captions == ["a person jumps.", "someone hops."] and part.label == "walk"
+    np.testing.assert_array_equal(part.features, x[20:90])  # [start * fps, end * fps) at 20 fps
+
+
+def test_length_filter_and_kit(tmp_path):
+    root = write_dataset(tmp_path / "h", {"a": (feats(39), [LINE], None), "b": (feats(40), [LINE], None),
+                                          "c": (feats(199), [LINE], None), "d": (feats(200), [LINE], None)})
+    assert [it.clip_id for it in MotionDataset.load(root)] == ["b", "c"]  # T2M: 40 <= T < 200
+    assert [it.clip_id for it in MotionDataset.load(root, min_frames=10, max_frames=201)] == ["a", "b", "c", "d"]
+    assert MotionDataset.load(root)[0].label is None
+    kit = write_dataset(tmp_path / "k", {"k1": (feats(30, 251), [LINE, "x.#x/X#0.0#2.0"], None)}, dim=251)
+    ds = MotionDataset.load(kit, skeleton="kit")
+    assert ds.fps == 12.5 and [it.clip_id for it in ds] == ["k1", "k1:0-25"]  # KIT: min 24 frames, 12.5 fps
+    assert ds[0].features.shape == (30, 251)
+
+
+def test_nan_features_name_the_file(tmp_path):
+    x = feats(60)
+    x[7, 3] = np.nan
+    root = write_dataset(tmp_path, {"bad": (x, [LINE], None)})
+    with pytest.raises(ValueError, match=r"new_joint_vecs/bad\.npy: contains NaN or inf \(first at frame 7\)"):
+        MotionDataset.load(root)
+
+
+def test_wrong_width_names_the_file(tmp_path):
+    root = write_dataset(tmp_path / "h", {"w": (feats(60, 251), [LINE], None)})
+    with pytest.raises(ValueError, match=r"w\.npy: expected \(T, 263\) features for humanml3d, got shape \(60, 251\)"):
+        MotionDataset.load(root)
+    kit = write_dataset(tmp_path / "k", {"w": (feats(60, 263), [LINE], None)}, dim=251)
+    with pytest.raises(ValueError, match=r"w\.npy: expected \(T, 251\) features for kit"):
+        MotionDataset.load(kit, skeleton="kit")
+    flat = write_dataset(tmp_path / "f", {"w": (np.zeros(263, np.float32), [LINE], None)})
+    with pytest.raises(ValueError, match="got shape"):
+        MotionDataset.load(flat)
+
+
+def test_missing_caption_file_names_it(tmp_path):
+    root = write_dataset(tmp_path, {"ok": (feats(60), [LINE], None), "nocap": (feats(60), None, None)})
+    with pytest.raises(FileNotFoundError, match=r"caption file missing: .*texts/nocap\.txt"):
+        MotionDataset.load(root)
+
+
+def test_unknown_split_entry_names_the_split_file(tmp_path):
+    root = write_dataset(tmp_path, {"ok": (feats(60), [LINE], None)}, splits={"train": ["ok", "ghost"]})
+    with pytest.raises(FileNotFoundError, match=r"train\.txt lists 'ghost' but .*new_joint_vecs/ghost\.npy"):
+        MotionDataset.load(root)
+
+
+def test_other_bad_inputs(tmp_path):
+    root = write_dataset(tmp_path / "a", {"c": (feats(60), ["no hashes here"], None)})
+    with pytest.raises(ValueError, match=r"texts/c\.txt:1: expected 'caption#tokens#start#end'"):
+        MotionDataset.load(root)
+    root = write_dataset(tmp_path / "b", {"c": (feats(60), ["x.#x/X#soon#later"], None)})
+    with pytest.raises(ValueError, match=r"c\.txt:1: start/end must be numbers"):
+        MotionDataset.load(root)
+    root = write_dataset(tmp_path / "c", {"c": (feats(60), [LINE], None)}, stats=False)
+    with pytest.raises(FileNotFoundError, match=r"Mean\.npy"):
+        MotionDataset.load(root)
+    root = write_dataset(tmp_path / "d", {"c": (feats(60), [LINE], None)})
+    with pytest.raises(FileNotFoundError, match=r"split file missing: .*val\.txt"):
+        MotionDataset.load(root, "val")
+    with pytest.raises(ValueError, match="unknown split 'dev'"):
+        MotionDataset.load(root, "dev")
+    with pytest.raises(ValueError, match="unknown skeleton 'smpl'"):
+        MotionDataset.load(root, skeleton="smpl")
+    with pytest.raises(FileNotFoundError, match="dataset folder not found"):
+        MotionDataset.load(tmp_path / "nowhere")
+    short = write_dataset(tmp_path / "e", {"c": (feats(10), [LINE], None)})
+    with pytest.raises(ValueError, match=r"train\.txt: no clip of 1 has 40 <= frames < 200"):
+        MotionDataset.load(short)
+
+
+def test_parse_caption_line():
+    c = parse_caption_line(LINE, "f:1")
+    assert c.text == "a person walks forward." and c.tokens[:2] == ["a/DET", "person/NOUN"]
+    assert (c.start, c.end) == (0.0, 0.0)
+    with pytest.raises(ValueError, match="f:2: empty caption"):
+        parse_caption_line("#a/DET#0.0#0.0", "f:2")
