@@ -21,22 +21,11 @@ import torch
 
 from mogo_runtime.text import TokenizerSettings, tokenize
 
+from .graphs import io_spec
+
 INPUTS = ("input_ids", "attention_mask")
 OUTPUT = "text_embedding"
 _TRACE_TEXTS = ["a person walks forward", "a man waves his left hand and then jumps twice"]  # batch 2, S > 2
-
-_ONNX_DTYPES = {onnx.TensorProto.INT64: "int64", onnx.TensorProto.FLOAT: "float32"}
-
-
-def _describe(values) -> list[dict]:
-    """Graph inputs/outputs as {name, dtype, shape}; a symbolic dim is its name, a fixed one its size."""
-    out = []
-    for v in values:
-        t = v.type.tensor_type
-        shape = [d.dim_param if d.HasField("dim_param") else int(d.dim_value) for d in t.shape.dim]
-        out.append({"name": v.name, "dtype": _ONNX_DTYPES.get(t.elem_type, str(t.elem_type)), "shape": shape})
-    return out
-
 
 def _set_metadata(model: onnx.ModelProto, meta: dict[str, str]) -> None:
     kept = [p for p in model.metadata_props if p.key not in meta]
@@ -92,7 +81,8 @@ def export_text_encoder(encoder, out_dir: str | Path, opset: int = 20) -> dict:
     onnx.save(model, str(onnx_path))
     onnx.checker.check_model(str(onnx_path), full_check=True)
 
-    inputs, outputs = _describe(model.graph.input), _describe(model.graph.output)
+    spec = io_spec(model)
+    inputs, outputs = spec["inputs"], spec["outputs"]
     if [i["name"] for i in inputs] != list(INPUTS) or [o["name"] for o in outputs] != [OUTPUT]:
         raise RuntimeError(f"{onnx_path}: unexpected I/O names {inputs} -> {outputs}")
     for io in inputs:

@@ -1,0 +1,241 @@
+"""RQHC-Transformer: one causal relative-attention transformer emits all RVQ levels of a step at once (MOGO §2.2)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+# Tokens: ids 0..K-1 are codes, END = K ends the motion (the head predicts K+1 classes), BOS = K+1 marks
+# "the PnQ prefix goes here" (input only), PAD = K+2 pads batches (input only).
+#
+# Levels as a batch: the L level streams of a sample run as L rows (row b*L + l) of one shared causal
+# transformer. Stream l at step j >= 1 reads the sum of the level-0..l embeddings of step j-1 (eq. 8 and the
+# `Reduce` of Algorithm 2), at step 0 the prefix cond_proj(text) + q_emb[l] (PnQ, eq. 7). So one forward
+# pass predicts the tokens of all L levels of the next step.
+#
+# Classifier-free guidance: training replaces the text embedding by zeros with probability cond_drop_prob,
+# so the all-zero text embedding is the null condition; a sampler runs the unconditional branch with zeros.
+
+
+@dataclass
+class TransformerConfig:
+    num_levels: int = 6          # RVQ levels L (must match the VQ)
+    codebook_size: int = 512     # codes per level K (must match the VQ)
+    text_dim: int = 384          # size of the sentence embedding (all-MiniLM-L6-v2: 384)
+    d_model: int = 256           # residual stream width
+    n_layers: int = 4            # transformer blocks
+    n_heads: int = 4             # attention heads; d_model must be a multiple
+    ff_mult: int = 4             # MLP hidden size = ff_mult * d_model
+    dropout: float = 0.1         # dropout on attention weights and residual branches (training only)
+    max_rel_dist: int = 64       # relative distances are clipped to this; phi has max_rel_dist + 1 rows
+    cond_drop_prob: float = 0.1  # chance per training sample to replace the text by the null (zero) text
+
+    @property
+    def end_id(self) -> int:
+        return self.codebook_size
+
+    @property
+    def bos_id(self) -> int:
+        return self.codebook_size + 1
+
+    @property
+    def pad_id(self) -> int:
+        return self.codebook_size + 2
+
+    @property
+    def vocab_size(self) -> int:  # rows per level of the embedding table
+        return self.codebook_size + 3
+
+
+class RelativeSelfAttention(nn.Module):
+    """Causal self-attention with Transformer-XL relative positions (eq. 9) and a KV cache.
+
+    score(i, j) = (q_i + u) . k_j + (q_i + v) . phi[min(i - j, max_rel_dist)], scaled by 1/sqrt(head_dim).
+    Query i of a call sits at step P + i where P = past length; key j at step j. Nothing else carries
+    position, so a runtime may slide a window over the cache: keep step 0 (the PnQ prefix, the only key
+    that carries the text) and more than max_rel_dist recent steps, and every distance stays exact.
+    """
+
+    def __init__(self, cfg: TransformerConfig):
+        super().__init__()
+        assert cfg.d_model % cfg.n_heads == 0
+        self.n_heads, self.head_dim, self.max_rel_dist = cfg.n_heads, cfg.d_model // cfg.n_heads, cfg.max_rel_dist
+        self.qkv = nn.Linear(cfg.d_model, 3 * cfg.d_model)
+        self.proj = nn.Linear(cfg.d_model, cfg.d_model)
+        self.u = nn.Parameter(torch.zeros(cfg.n_heads, self.head_dim))  # content bias per head
+        self.v = nn.Parameter(torch.zeros(cfg.n_heads, self.head_dim))  # position bias per head
+        self.phi = nn.Parameter(torch.randn(cfg.max_rel_dist + 1, cfg.d_model) * 0.02)  # learned phi_{i-j}
+        # block-diagonal head selector: lets every head score against the 2-D phi with ONE 2-D MatMul
+        # (a per-head 3-D view of phi would become a 3-D constant weight, which per-channel int8 cannot run)
+        self.register_buffer("head_mask", torch.eye(cfg.n_heads).repeat_interleave(self.head_dim, dim=1),
+                             persistent=False)  # (H, d_model)
+        self.attn_drop = nn.Dropout(cfg.dropout)
+        self.resid_drop = nn.Dropout(cfg.dropout)
+
+    def forward(self, x, past_k, past_v):
+        """x (N, S, C); past_k/v (N, H, P, hd) -> y (N, S, C), present k/v (N, H, P+S, hd)."""
+        N, S, C = x.shape
+        H, hd = self.n_heads, self.head_dim
+        P = past_k.shape[2]
+        q, k, v = self.qkv(x).split(C, dim=2)
+        q = q.view(N, S, H, hd).transpose(1, 2)  # (N, H, S, hd)
+        k = torch.cat([past_k, k.view(N, S, H, hd).transpose(1, 2)], dim=2)  # (N, H, P+S, hd)
+        v = torch.cat([past_v, v.view(N, S, H, hd).transpose(1, 2)], dim=2)  # (N, H, P+S, hd)
+
+        content = (q + self.u.unsqueeze(1)) @ k.transpose(-2, -1)  # (N, H, S, P+S)
+        qv = (q + self.v.unsqueeze(1)).unsqueeze(3) * self.head_mask.view(1, H, 1, H, hd)  # (N, H, S, H, hd)
+        pos_all = qv.flatten(3) @ self.phi.t()  # (N, H, S, R): head h against its slice of every phi row
+        dist = (torch.arange(S, device=x.device) + P).unsqueeze(1) - torch.arange(P + S, device=x.device)  # (S, P+S)
+        rel = dist.clamp(0, self.max_rel_dist)  # future keys get a valid index, then the mask removes them
+        pos = pos_all.gather(3, rel.expand(N, H, S, P + S))  # (N, H, S, P+S)
+
+        att = (content + pos) * (1.0 / math.sqrt(hd))  # (N, H, S, P+S)
+        att = att.masked_fill(dist < 0, float("-inf")).softmax(dim=-1)
+        y = self.attn_drop(att) @ v  # (N, H, S, hd)
+        y = y.transpose(1, 2).reshape(N, S, C)  # (N, S, C)
+        return self.resid_drop(self.proj(y)), k, v
+
+
+class MLP(nn.Module):
+
+    def __init__(self, cfg: TransformerConfig):
+        super().__init__()
+        self.fc = nn.Linear(cfg.d_model, cfg.ff_mult * cfg.d_model)
+        self.proj = nn.Linear(cfg.ff_mult * cfg.d_model, cfg.d_model)
+        self.drop = nn.Dropout(cfg.dropout)
+
+    def forward(self, x):  # (N, S, C)
+        return self.drop(self.proj(F.gelu(self.fc(x))))  # (N, S, C)
+
+
+class Block(nn.Module):
+    """Pre-LN transformer block."""
+
+    def __init__(self, cfg: TransformerConfig):
+        super().__init__()
+        self.ln_1 = nn.LayerNorm(cfg.d_model)
+        self.attn = RelativeSelfAttention(cfg)
+        self.ln_2 = nn.LayerNorm(cfg.d_model)
+        self.mlp = MLP(cfg)
+
+    def forward(self, x, past_k, past_v):  # x (N, S, C)
+        a, k, v = self.attn(self.ln_1(x), past_k, past_v)
+        x = x + a
+        x = x + self.mlp(self.ln_2(x))
+        return x, k, v  # (N, S, C), (N, H, P+S, hd) x 2
+
+
+class RQHCTransformer(nn.Module):
+
+    def __init__(self, cfg: TransformerConfig):
+        super().__init__()
+        self.cfg = cfg
+        L, C = cfg.num_levels, cfg.d_model
+        # one table for all levels, row level*(K+3) + token: 2-D so a Gather on it can be int8-quantized
+        self.tok_emb = nn.Embedding(L * cfg.vocab_size, C)
+        self.q_emb = nn.Parameter(torch.randn(L, C) * 0.02)  # q_emb[l]: which level a stream predicts
+        self.cond_proj = nn.Linear(cfg.text_dim, C)
+        self.drop = nn.Dropout(cfg.dropout)
+        self.blocks = nn.ModuleList([Block(cfg) for _ in range(cfg.n_layers)])
+        self.ln_f = nn.LayerNorm(C)
+        self.head = nn.Linear(C, cfg.codebook_size + 1)  # K codes + END
+        self.register_buffer("level_offset", torch.arange(L) * cfg.vocab_size, persistent=False)
+        self.apply(self._init_weights)
+        for name, p in self.named_parameters():
+            if name.endswith("proj.weight") and not name.startswith("cond_proj"):
+                # GPT-2: scale residual projections by depth so the residual stream starts small
+                nn.init.normal_(p, mean=0.0, std=0.02 / math.sqrt(2 * cfg.n_layers))
+
+    @staticmethod
+    def _init_weights(m):
+        if isinstance(m, (nn.Linear, nn.Embedding)):
+            nn.init.normal_(m.weight, mean=0.0, std=0.02)
+            if isinstance(m, nn.Linear) and m.bias is not None:
+                nn.init.zeros_(m.bias)
+
+    def param_count(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+    def empty_past(self, batch: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """A zero-length cache for `batch` samples: per layer (key, value), each (batch*L, H, 0, hd)."""
+        cfg = self.cfg
+        z = self.tok_emb.weight.new_zeros(batch * cfg.num_levels, cfg.n_heads, 0, cfg.d_model // cfg.n_heads)
+        return [(z, z) for _ in range(cfg.n_layers)]
+
+    def _inputs(self, text_emb, tokens):
+        """text_emb (B, text_dim), tokens (B, S, L) -> stream inputs (B*L, S, C), eq. 7-8."""
+        cfg = self.cfg
+        B, S, L = tokens.shape
+        if self.training and cfg.cond_drop_prob > 0:
+            keep = (torch.rand(B, 1, device=text_emb.device) >= cfg.cond_drop_prob).to(text_emb.dtype)
+            text_emb = text_emb * keep  # dropped samples see the null (all-zero) text
+        prefix = self.cond_proj(text_emb)[:, None, None, :] + self.q_emb  # (B, 1, L, C) PnQ
+        is_bos = (tokens == cfg.bos_id).unsqueeze(-1)  # (B, S, L, 1)
+        emb = self.tok_emb(tokens + self.level_offset)  # (B, S, L, C)
+        # stream l reads the sum of levels 0..l: the residual latent as far as level l has refined it
+        cum = emb.masked_fill(is_bos, 0.0).cumsum(dim=2)  # (B, S, L, C)
+        x = torch.where(is_bos, prefix, cum)  # (B, S, L, C)
+        return x.transpose(1, 2).reshape(B * L, S, -1)  # (B*L, S, C), row b*L + l
+
+    def step(self, text_emb, tokens, past):
+        """One call of the decoder with a KV cache; serves full sequences, prefill, chunks and single steps.
+
+        text_emb (B, text_dim) float; tokens (B, S, L) int64 (BOS where the PnQ prefix goes, i.e. step 0);
+        past: per layer (key, value), each (B*L, n_heads, P, head_dim), P >= 0 (see `empty_past`).
+        Returns logits (B, S, L, K+1) and presents: per layer (key, value), each (B*L, n_heads, P+S, head_dim).
+        """
+        B, S, L = tokens.shape
+        x = self.drop(self._inputs(text_emb, tokens))  # (B*L, S, C)
+        presents = []
+        for block, (pk, pv) in zip(self.blocks, past):
+            x, k, v = block(x, pk, pv)
+            presents.append((k, v))
+        logits = self.head(self.ln_f(x))  # (B*L, S, K+1)
+        return logits.view(B, L, S, -1).transpose(1, 2), presents  # (B, S, L, K+1)
+
+    def forward(self, text_emb, tokens):
+        """Full sequence, no cache: text_emb (B, text_dim), tokens (B, S, L) -> logits (B, S, L, K+1)."""
+        return self.step(text_emb, tokens, self.empty_past(tokens.shape[0]))[0]
+
+    def loss(self, text_emb, tokens_in, targets, lengths):
+        """Cross-entropy of eq. 11, averaged over the valid (step, level) pairs, and accuracy.
+
+        tokens_in (B, S, L): [BOS, t_0, ..., t_{T-1}, PAD...]; targets (B, S, L): [t_0, ..., t_{T-1}, END, PAD...];
+        lengths (B,): T, the motion length in tokens, so the first T + 1 steps (END included) count.
+        Returns (loss, {"acc": (), "acc_per_level": (L,)}).
+        """
+        B, S, L = tokens_in.shape
+        logits = self(text_emb, tokens_in)  # (B, S, L, K+1)
+        valid = torch.arange(S, device=tokens_in.device) <= lengths.unsqueeze(1)  # (B, S)
+        valid = valid.unsqueeze(-1).expand(B, S, L)  # (B, S, L)
+        tgt = targets.masked_fill(~valid, 0)  # PAD is not a class of the head
+        ce = F.cross_entropy(logits.flatten(0, 2), tgt.flatten(), reduction="none").view(B, S, L)
+        n = valid.sum()
+        loss = (ce * valid).sum() / n
+        with torch.no_grad():
+            hit = (logits.argmax(-1) == tgt) & valid  # (B, S, L)
+            acc = hit.sum() / n
+            acc_per_level = hit.sum(dim=(0, 1)) / valid.sum(dim=(0, 1))  # (L,)
+        return loss, {"acc": acc, "acc_per_level": acc_per_level}
+
+
+# -----------------------------------------------------------------------------
+# presets
+
+PRESETS = {
+    # unit tests
+    "tiny": dict(num_levels=2, codebook_size=32, d_model=32, n_layers=2, n_heads=2, max_rel_dist=8),
+    # the demo model, matched to vq.PRESETS["base"]: ~0.85 s (31 steps) to ~1.8 s (51 steps) per
+    # forward+backward of 32 clips x 4 levels on 2 idle cores; d_model=128 is ~2.5x faster
+    "base": dict(num_levels=4, codebook_size=512, d_model=256, n_layers=4, n_heads=4, max_rel_dist=64),
+    # the paper's 6 levels of 8192 codes; it gives no transformer sizes, so a GPT-2-small body (~132M params)
+    "paper": dict(num_levels=6, codebook_size=8192, d_model=768, n_layers=12, n_heads=12, max_rel_dist=256),
+}
+
+
+def preset(name: str, **overrides) -> TransformerConfig:
+    """A TransformerConfig from a named preset ("tiny", "base", "paper"), with keyword overrides."""
+    return TransformerConfig(**{**PRESETS[name], **overrides})
