@@ -49,7 +49,7 @@ SCHEDULES = {
     "tiny": {"vq": Schedule(steps=60, batch_size=8, lr=1e-3, warmup=5, val_every=30, ckpt_every=30, window=16),
              "transformer": Schedule(steps=60, batch_size=8, lr=1e-3, warmup=5, val_every=30, ckpt_every=30)},
     "base": {"vq": Schedule(steps=1500, batch_size=32, lr=5e-4, window=64),
-             "transformer": Schedule(steps=3000, batch_size=32, lr=4e-4)},
+             "transformer": Schedule(steps=1300, batch_size=32, lr=5e-4, val_every=250, ckpt_every=250)},
     "paper": {"vq": Schedule(steps=100_000, batch_size=256, lr=2e-4, window=64, val_every=2000, ckpt_every=2000),
               "transformer": Schedule(steps=100_000, batch_size=256, lr=2e-4, val_every=2000, ckpt_every=2000)},
 }
@@ -199,8 +199,14 @@ def _caption_table(data: Path, out: Path, encoder_name: str):
 # -----------------------------------------------------------------------------
 # RQHC-Transformer
 
-def _token_batch(seqs, caps, emb, rng, batch, cfg):
-    idx = rng.integers(len(seqs), size=batch)
+def _token_batch(seqs, caps, emb, rng, batch, cfg, by_length=None):
+    """A batch of (text, [BOS, t...], [t..., END], length). With `by_length` (indices sorted by length) the batch is
+    a random run of similar lengths, so little compute goes to padding."""
+    if by_length is not None and len(by_length) > batch:
+        start = rng.integers(len(by_length) - batch + 1)
+        idx = by_length[start:start + batch]
+    else:
+        idx = rng.integers(len(seqs), size=batch)
     lengths = np.array([len(seqs[i]) for i in idx])
     S = lengths.max() + 1
     L, K = cfg.num_levels, cfg.codebook_size
@@ -242,6 +248,7 @@ def train_transformer(data: Path, out: Path, preset: str = "base", seed: int = 0
 
     seqs, caps = split("train")
     val_seqs, val_caps = split("val")
+    by_length = np.argsort([len(q) for q in seqs], kind="stable")
     max_tokens = max(len(s) for s in seqs)
     cfg = tmodel.preset(preset, num_levels=vq_cfg["num_levels"], codebook_size=vq_cfg["codebook_size"],
                         text_dim=text_dim, **overrides)
@@ -261,7 +268,7 @@ def train_transformer(data: Path, out: Path, preset: str = "base", seed: int = 0
     for step in bar:
         model.train()
         _set_lr(opt, sched.lr_at(step))
-        text, tin, tgt, lengths = _token_batch(seqs, caps, emb, rng, sched.batch_size, cfg)
+        text, tin, tgt, lengths = _token_batch(seqs, caps, emb, rng, sched.batch_size, cfg, by_length)
         loss, stats = model.loss(text, tin, tgt, lengths)
         opt.zero_grad(set_to_none=True)
         loss.backward()
