@@ -1,0 +1,1 @@
+"""mogo benchmarks (issue 6): `python -m benchmarks.run` (or `make bench`); see benchmarks/README.md."""

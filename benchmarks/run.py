@@ -1,0 +1,507 @@
+"""`make bench`: every configuration of issue 6 in its own process, repeated; JSON + a Markdown table.
+
+    python -m benchmarks.run [--bundle bundles/base] [--checkpoints checkpoints/base] [--repeats 5]
+
+Writes benchmarks/results/<timestamp>.json and benchmarks/results/latest.md (and prints the table). Each round runs
+every configuration once, each in a fresh process (`benchmarks.cases`); rounds repeat, so load drift on a shared
+machine spreads over all configurations alike. Absolute times are context only; the goals are judged on ratios
+measured within one run.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+MOTION_FRAMES = 196
+
+GOALS = [  # key, measure, goal text, threshold, direction
+    ("rtf_int8_t1", "real-time factor, int8, 1 thread", "≥ 30×", 30.0, ">="),
+    ("ttff_int8_t1", "time to first frame (streaming, includes text encoding), int8, 1 thread", "≤ 20 ms", 0.020,
+     "<="),
+    ("int8_over_fp32_step", "int8 step ÷ fp32 step (batch 1, 1 thread, past T'/2)", "≤ 0.5", 0.5, "<="),
+    ("ort_over_torch", "ORT fp32 end-to-end ÷ torch eager (KV-cached) end-to-end, 1 thread", "≤ 0.33", 0.33, "<="),
+    ("kv_over_recompute", "KV-cached ÷ recompute-every-step end-to-end (torch, 1 thread)", "≤ 0.1", 0.1, "<="),
+    ("step_over_floor", "step time ÷ physical floor (int8, batch 1, 1 thread, past T'/2; DRAM floor)", "≤ 2", 2.0,
+     "<="),
+    ("step_over_cache_floor", "step time ÷ cache-resident floor (same step; weights in L3, stricter)", "≤ 2", 2.0,
+     "<="),
+    ("peak_rss", "runtime peak RSS (int8, 1 thread, generate + stream)", "≤ 200 MB", 200e6, "<="),
+    ("cold_start", "cold start, import + load (int8, fresh process)", "≤ 0.5 s", 0.5, "<="),
+]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# running cases
+
+def run_case(case: str, args: list[str], threads: int, timeout: float) -> dict:
+    env = dict(os.environ)
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[var] = str(threads)
+    env.pop("MOGO_BLOCK_TORCH", None)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), str(ROOT / "runtime")] +
+                                        ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    cmd = [sys.executable, "-m", "benchmarks.cases", case, "--threads", str(threads), *args, "--json"]
+    t = time.perf_counter()
+    try:
+        done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"case": case, "error": f"timed out after {timeout:.0f} s", "cmd": cmd}
+    wall = time.perf_counter() - t
+    lines = [ln for ln in done.stdout.splitlines() if ln.startswith("{")]
+    if done.returncode != 0 or not lines:
+        return {"case": case, "error": f"exit {done.returncode}: {done.stderr.strip()[-2000:]}", "cmd": cmd,
+                "process_wall": wall}
+    result = json.loads(lines[-1])
+    result["process_wall"] = wall
+    return result
+
+
+def plan(opts, rnd: int) -> list[tuple[str, str, list[str], int]]:
+    """The processes of round `rnd` (0-based): every configuration once -> [(label, case, args, threads)].
+
+    Rounds run one after another, so a configuration's repeats are spread over the whole run and a slow spell on a
+    shared machine hits every configuration alike (ratios stay fair). Round 0 also profiles one generation."""
+    b = ["--bundle", str(opts.bundle)]
+    one = ["--repeats", str(opts.per_process)]
+    quick = ["--quick"] if opts.quick else []
+    step_warm = ["--warmup", "1"] if opts.quick else []
+    gen_opts = (["--warmup", "0"] if opts.quick else []) + (["--profile"] if rnd == 0 else [])
+    gen_opts += ["--seed", str(rnd * opts.per_process)]
+    jobs = []
+    for th in opts.threads:
+        jobs.append((f"floor threads={th}", "floor", b + quick, th))
+    for v in opts.variants:
+        for th in opts.threads:
+            for batch in opts.batches:
+                jobs.append((f"step {v} threads={th} batch={batch}", "step",
+                             b + one + step_warm + ["--variant", v, "--batch", str(batch), "--iters", str(opts.iters)],
+                             th))
+    for v in opts.variants:
+        for th in opts.threads:
+            jobs.append((f"e2e onnxruntime {v} threads={th}", "e2e", b + one + gen_opts + ["--variant", v], th))
+    if opts.torch:
+        ck = ["--checkpoints", str(opts.checkpoints)]
+        for kv in (True, False):
+            for th in opts.threads:
+                jobs.append((f"torch {'kv-cache' if kv else 'recompute'} threads={th}", "torch",
+                             b + ck + one + gen_opts + ([] if kv else ["--no-kv-cache"]), th))
+    if rnd < opts.cold_repeats:
+        for v in opts.variants:
+            jobs.append((f"cold start {v}", "cold", b + ["--variant", v], 1))
+    return jobs
+
+
+def _merge_stats(items: list[dict | None]) -> dict | None:
+    values = [x for s in items if s and s.get("n") for x in s["values"]]
+    return _stats(values) if values else None
+
+
+def merge(results: list[dict]) -> list[dict]:
+    """Processes of the same configuration (one per round) -> one result, their samples pooled."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in results:
+        if "error" in r or r["case"] == "cold":
+            continue
+        key = (r["case"], r.get("variant"), r["threads"], r.get("batch"), r.get("engine"), r.get("kv_cache"))
+        groups.setdefault(key, []).append(r)
+    merged = []
+    for key, rs in groups.items():
+        m = dict(rs[0])
+        m["processes"] = len(rs)
+        case = key[0]
+        if case == "floor":
+            for k, v in rs[0].items():
+                if isinstance(v, dict) and "values" in v:
+                    m[k] = _merge_stats([r[k] for r in rs])
+        elif case == "step":
+            m["points"] = [{**p, "seconds": _merge_stats([r["points"][i]["seconds"] for r in rs])}
+                           for i, p in enumerate(rs[0]["points"])]
+        else:
+            for k in ("wall", "stream_first_frame", "stream_wall"):
+                if k in m:
+                    m[k] = _merge_stats([r.get(k) for r in rs])
+            m["rtf"] = m["motion_seconds"] / m["wall"]["median"]
+            m["peak_rss_bytes"] = max(r["peak_rss_bytes"] for r in rs)
+            m["profile"] = next((r["profile"] for r in rs if r.get("profile")), None)
+        merged.append(m)
+    return merged
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# the physical floor of one step
+
+def step_work(bundle: Path, manifest: dict) -> dict:
+    """Matmul weights per graph row kind, from step.onnx (exact), or an estimate from the manifest."""
+    m = manifest["model"]
+    C, R1, K = int(m["d_model"]), int(m["max_rel_dist"]) + 1, int(m["codebook_size"])
+    work = {"per_stream": 0, "per_prompt": 0, "per_head_row": 0, "source": "step.onnx"}
+    try:
+        import onnx
+
+        g = onnx.load(str(bundle / manifest["variants"]["fp32"]["step"]["file"])).graph
+        shapes = {i.name: tuple(i.dims) for i in g.initializer}
+        for n in g.node:
+            if n.op_type == "Constant":
+                for a in n.attribute:
+                    if a.name == "value":
+                        shapes[n.output[0]] = tuple(a.t.dims)
+        for n in g.node:
+            if n.op_type not in ("MatMul", "Gemm") or len(n.input) < 2:
+                continue
+            w = shapes.get(n.input[1])
+            if w is None or len(w) != 2:
+                continue                                   # activation x activation: attention, counted below
+            k, nn = w
+            if n.input[0] == "text_embedding":
+                work["per_prompt"] += k * nn               # cond_proj: one row per prompt
+            elif C in (k, nn) and R1 in (k, nn):
+                work["per_head_row"] += k * nn             # q+v against every phi row, one row per stream and head
+            else:
+                work["per_stream"] += k * nn
+    except Exception as e:                                                      # noqa: BLE001
+        L = int(m["n_layers"])
+        work = {"per_stream": L * 12 * C * C + C * (K + 1), "per_prompt": int(m["text_dim"]) * C,
+                "per_head_row": L * C * R1, "source": f"estimate ({type(e).__name__}: {e})"}
+    return work
+
+
+def step_floor(manifest: dict, work: dict, weight_bytes: int, rows: int, past: int, bandwidth: float,
+               flops_per_s: float) -> dict:
+    m = manifest["model"]
+    L, H, hd, NL = int(m["num_levels"]), int(m["n_heads"]), int(m["head_dim"]), int(m["n_layers"])
+    streams = rows * L
+    flops = 2 * (work["per_stream"] * streams + work["per_prompt"] * rows + work["per_head_row"] * streams * H)
+    flops += NL * 2 * 2 * streams * H * hd * (past + 1)                       # q.k and att.v
+    kv_bytes = 2 * NL * streams * H * past * hd * 4                             # float32 cache, read once
+    bytes_read = weight_bytes + kv_bytes
+    t_mem, t_flop = bytes_read / bandwidth, flops / flops_per_s
+    return {"flops": flops, "bytes": bytes_read, "kv_bytes": kv_bytes, "t_mem": t_mem, "t_flops": t_flop,
+            "floor": max(t_mem, t_flop), "bound": "memory" if t_mem >= t_flop else "compute"}
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# summary
+
+def _med(s: dict | None) -> float | None:
+    return None if not s or not s.get("n") else s["median"]
+
+
+def summarize(results: list[dict], manifest: dict, bundle: Path, opts) -> dict:
+    ok = merge(results) + [r for r in results if "error" not in r and r["case"] == "cold"]
+    floors = {r["threads"]: r for r in ok if r["case"] == "floor"}
+    files = manifest["files"]
+    variant_bytes = {}
+    for v, graphs in manifest["variants"].items():
+        names = {g["file"] for g in graphs.values()} | {n for n in files if not n.endswith(".onnx")}
+        variant_bytes[v] = {"total": sum(files[n]["bytes"] for n in names),
+                            **{g: files[spec["file"]]["bytes"] for g, spec in graphs.items()}}
+    work = step_work(bundle, manifest)
+
+    steps = []
+    for r in (r for r in ok if r["case"] == "step"):
+        fl = floors.get(r["threads"]) or floors.get(1)
+        for p in r["points"]:
+            row = {"variant": r["variant"], "threads": r["threads"], "batch": r["batch"], "rows": r["rows"],
+                   "past": p["past"], "seconds": p["seconds"]}
+            if fl:
+                wb = variant_bytes[r["variant"]]["step"]
+                gf = _med(fl["sgemm_1024_gflops"]) * 1e9
+                dram = step_floor(manifest, work, wb, r["rows"], p["past"], _med(fl["copy_dram_gbs"]) * 1e9, gf)
+                cache = step_floor(manifest, work, wb, r["rows"], p["past"], _med(fl["copy_cache_gbs"]) * 1e9, gf)
+                row.update(floor=dram, cache_floor=cache, over_floor=_med(p["seconds"]) / dram["floor"],
+                           over_cache_floor=_med(p["seconds"]) / cache["floor"])
+            steps.append(row)
+    e2e = [r for r in ok if r["case"] in ("e2e", "torch")]
+    colds = [r for r in ok if r["case"] == "cold"]
+    cold = {}
+    for v in sorted({r["variant"] for r in colds}):
+        rs = [r for r in colds if r["variant"] == v]
+        cold[v] = {k: _stats([r[k] for r in rs]) for k in ("import_mogo_runtime", "import_onnxruntime", "bundle_load",
+                                                             "sessions", "import_and_load", "first_frame_after_load",
+                                                             "process_wall")}
+        cold[v]["peak_rss_bytes"] = max(r["peak_rss_bytes"] for r in rs)
+
+    def find_e2e(engine, variant, threads, kv=True):
+        for r in e2e:
+            if r["engine"] == engine and r["variant"] == variant and r["threads"] == threads and r["kv_cache"] == kv:
+                return r
+        return None
+
+    def find_step(variant, threads, batch, past):
+        for s in steps:
+            if (s["variant"], s["threads"], s["batch"], s["past"]) == (variant, threads, batch, past):
+                return s
+        return None
+
+    T = max(1, min(int(manifest["model"]["max_tokens"]), round(MOTION_FRAMES / int(manifest["model"]["downsample"]))))
+    mid = T // 2
+    values: dict[str, tuple[float | None, str]] = {}
+    q, f = find_e2e("onnxruntime", "int8", 1), find_e2e("onnxruntime", "fp32", 1)
+    tk, tr = find_e2e("torch", "fp32", 1, True), find_e2e("torch", "fp32", 1, False)
+    values["rtf_int8_t1"] = (q and q["rtf"], q and f"{_med(q['wall']) * 1e3:.1f} ms for {q['motion_seconds']:g} s")
+    values["ttff_int8_t1"] = (q and _med(q["stream_first_frame"]), "")
+    s8, s32 = find_step("int8", 1, 1, mid), find_step("fp32", 1, 1, mid)
+    values["int8_over_fp32_step"] = (
+        s8 and s32 and _med(s8["seconds"]) / _med(s32["seconds"]),
+        s8 and s32 and f"{_med(s8['seconds']) * 1e3:.3f} / {_med(s32['seconds']) * 1e3:.3f} ms")
+    values["ort_over_torch"] = (f and tk and _med(f["wall"]) / _med(tk["wall"]),
+                                f and tk and f"{_med(f['wall']) * 1e3:.1f} / {_med(tk['wall']) * 1e3:.1f} ms")
+    values["kv_over_recompute"] = (tk and tr and _med(tk["wall"]) / _med(tr["wall"]),
+                                   tk and tr and f"{_med(tk['wall']) * 1e3:.1f} / {_med(tr['wall']) * 1e3:.1f} ms")
+    values["step_over_floor"] = (s8 and s8.get("over_floor"), s8 and "floor" in s8 and
+                                 f"{_med(s8['seconds']) * 1e3:.3f} / {s8['floor']['floor'] * 1e3:.3f} ms "
+                                 f"({s8['floor']['bound']}-bound)")
+    values["step_over_cache_floor"] = (s8 and s8.get("over_cache_floor"), s8 and "cache_floor" in s8 and
+                                       f"{_med(s8['seconds']) * 1e3:.3f} / {s8['cache_floor']['floor'] * 1e3:.3f} ms "
+                                       f"({s8['cache_floor']['bound']}-bound)")
+    values["peak_rss"] = (q and q["peak_rss_bytes"], "")
+    values["cold_start"] = (cold.get("int8") and _med(cold["int8"]["import_and_load"]),
+                            cold.get("int8") and f"fresh process incl. interpreter: "
+                                                 f"{_med(cold['int8']['process_wall']):.2f} s")
+    goals = []
+    for key, measure, goal, thr, direction in GOALS:
+        value, detail = values.get(key, (None, ""))
+        met = None if value is None else (value >= thr if direction == ">=" else value <= thr)
+        goals.append({"key": key, "measure": measure, "goal": goal, "value": value, "met": met,
+                      "detail": detail or ""})
+    context = []
+
+    def ratio(label, a, b, note=""):
+        if a is not None and b is not None and b > 0:
+            context.append({"ratio": label, "value": a / b, "note": note})
+
+    w = lambda r, k="wall": r and _med(r.get(k))                               # noqa: E731
+    ratio("ORT int8 (KV) ÷ torch recompute, end to end, 1 thread", w(q), w(tr), "across engines")
+    ratio("ORT fp32 ÷ torch recompute, end to end, 1 thread", w(f), w(tr), "across engines")
+    ratio("ORT int8 ÷ ORT fp32, end to end, 1 thread", w(q), w(f))
+    for v in opts.variants:
+        ratio(f"ORT {v}: 2 threads ÷ 1 thread, end to end", w(find_e2e("onnxruntime", v, 2)),
+              w(find_e2e("onnxruntime", v, 1)))
+        ratio(f"ORT {v}: streaming (all frames) ÷ generate, 1 thread", w(find_e2e("onnxruntime", v, 1), "stream_wall"),
+              w(find_e2e("onnxruntime", v, 1)), "the decoder runs on a receptive-field window every step")
+    for r in (q, f):
+        if r and r.get("profile"):
+            ratio(f"ORT {r['variant']}: sampling share of generate, 1 thread", r["profile"]["parts"]["sample"],
+                  r["profile"]["wall"], "one instrumented run")
+    for v in opts.variants:
+        for th in opts.threads:
+            a, b1 = find_step(v, th, max(opts.batches), T), find_step(v, th, 1, T)
+            if a and b1 and max(opts.batches) > 1:
+                ratio(f"step {v} {th} thread(s), past {T}: batch {max(opts.batches)} ÷ (batch 1 × "
+                      f"{max(opts.batches)})", _med(a["seconds"]), _med(b1["seconds"]) * max(opts.batches),
+                      "< 1: batching prompts pays")
+    return {"goals": goals, "context": context, "steps": steps, "e2e": e2e, "cold_start": cold, "floor": floors,
+            "bundle_bytes": variant_bytes, "step_work": work, "motion_tokens": T,
+            "errors": [r for r in results if "error" in r]}
+
+
+def _stats(xs):
+    xs = sorted(xs)
+    return {"n": len(xs), "median": statistics.median(xs), "min": xs[0], "max": xs[-1], "values": xs}
+
+
+def _fmt_goal_value(key, v):
+    if v is None:
+        return "n/a"
+    if key == "rtf_int8_t1":
+        return f"{v:.1f}×"
+    if key == "ttff_int8_t1":
+        return f"{v * 1e3:.1f} ms"
+    if key == "peak_rss":
+        return f"{v / 1e6:.0f} MB"
+    if key == "cold_start":
+        return f"{v:.2f} s"
+    return f"{v:.2f}"
+
+
+def _ms(s: dict | None, digits=2) -> str:
+    if not s or not s.get("n"):
+        return "n/a"
+    return f"{s['median'] * 1e3:.{digits}f} [{s['min'] * 1e3:.{digits}f}–{s['max'] * 1e3:.{digits}f}]"
+
+
+def markdown(report: dict) -> str:
+    meta, summ = report["meta"], report["summary"]
+    out = [f"# mogo benchmark: {meta['bundle']}", "",
+           f"{meta['time']} · {meta['machine']} · onnxruntime {meta['versions'].get('onnxruntime')} · "
+           f"numpy {meta['versions'].get('numpy')} · {meta['repeats']} rounds · total {meta['total_seconds']:.0f} s",
+           "", f"Command: `{meta['command']}`", "",
+           f"Motion: {MOTION_FRAMES} frames = {summ['motion_tokens']} tokens (downsample "
+           f"{meta['model']['downsample']}, {meta['model']['fps']:g} fps). Each configuration ran once per round "
+           "in its own process, rounds one after another; times are median [min–max] over those processes (a "
+           "step sample is the median of its process's calls). Ratios are computed within this run; absolute "
+           "times on a shared machine are context only.", "",
+           "## Goals (issue 6)", "", "| measure | goal | measured | | detail |", "|---|---|---|---|---|"]
+    for g in summ["goals"]:
+        met = "n/a" if g["met"] is None else ("met" if g["met"] else "**missed**")
+        out.append(f"| {g['measure']} | {g['goal']} | {_fmt_goal_value(g['key'], g['value'])} | {met} | "
+                   f"{g['detail']} |")
+    if summ.get("context"):
+        out += ["", "## Other ratios in this run (context)", "", "| ratio | value | note |", "|---|---|---|"]
+        out += [f"| {c['ratio']} | {c['value']:.2f} | {c['note']} |" for c in summ["context"]]
+    out += ["", "## Step graph latency (ms per call)", "",
+            "Rows = prompts × (2 with guidance); int8 with several rows runs row by row in the runtime (the "
+            "batched graph is timed here). Floor = max(bytes read / bandwidth, FLOPs / sgemm throughput), bytes = "
+            "step file + KV cache at that past; DRAM = 128 MiB copy, cache = 4 MiB copy.", "",
+            "| variant | threads | prompts (rows) | past | step ms | DRAM floor ms | step ÷ floor | cache floor ms | "
+            "step ÷ cache floor |", "|---|---|---|---|---|---|---|---|---|"]
+    for s in summ["steps"]:
+        fl, cf = s.get("floor"), s.get("cache_floor")
+        out.append(f"| {s['variant']} | {s['threads']} | {s['batch']} ({s['rows']}) | {s['past']} | "
+                   f"{_ms(s['seconds'], 3)} | {fl['floor'] * 1e3:.3f} ({fl['bound'][:3]}) | {s['over_floor']:.2f} | "
+                   f"{cf['floor'] * 1e3:.3f} ({cf['bound'][:3]}) | {s['over_cache_floor']:.2f} |"
+                   if fl else f"| {s['variant']} | {s['threads']} | {s['batch']} ({s['rows']}) | {s['past']} | "
+                              f"{_ms(s['seconds'], 3)} | n/a | n/a | n/a | n/a |")
+    out += ["", f"## End to end: {MOTION_FRAMES} frames from text to joints", "",
+            "| engine | variant | threads | cache | wall ms | real-time factor | first frame ms (stream) | "
+            "stream wall ms | peak RSS MB |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in summ["e2e"]:
+        out.append(f"| {r['engine']} | {r['variant']} | {r['threads']} | {'KV' if r['kv_cache'] else 'recompute'} | "
+                   f"{_ms(r['wall'], 1)} | {r['rtf']:.1f}× | {_ms(r.get('stream_first_frame'), 1)} | "
+                   f"{_ms(r.get('stream_wall'), 1)} | {r['peak_rss_bytes'] / 1e6:.0f} |")
+    out += ["", "## Where one generation's time goes (one instrumented run, ms)", "",
+            "| engine | variant | threads | cache | wall | text | step | sample | decode | joints | loop/other |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in summ["e2e"]:
+        p = r["profile"]["parts"]
+        out.append(f"| {r['engine']} | {r['variant']} | {r['threads']} | {'KV' if r['kv_cache'] else 'recompute'} | "
+                   f"{r['profile']['wall'] * 1e3:.1f} | " +
+                   " | ".join(f"{p.get(k, 0) * 1e3:.1f}" for k in ("text", "step", "sample", "decode", "joints",
+                                                                  "loop_other")) + " |")
+    out += ["", "## Cold start (fresh process, s)", "",
+            "| variant | import mogo_runtime | import onnxruntime | Bundle.load | sessions | import + load | "
+            "first frame after load | process wall | peak RSS MB |", "|---|---|---|---|---|---|---|---|---|"]
+    for v, c in summ["cold_start"].items():
+        out.append(f"| {v} | " + " | ".join(f"{_med(c[k]):.3f}" for k in (
+            "import_mogo_runtime", "import_onnxruntime", "bundle_load", "sessions", "import_and_load",
+            "first_frame_after_load", "process_wall")) + f" | {c['peak_rss_bytes'] / 1e6:.0f} |")
+    out += ["", "## Bundle size per variant (MB, manifest)", "",
+            "| variant | total | " + " | ".join(next(iter(summ["bundle_bytes"].values())).keys() - {"total"}) + " |"]
+    keys = [k for k in next(iter(summ["bundle_bytes"].values())) if k != "total"]
+    out[-1] = "| variant | total | " + " | ".join(keys) + " |"
+    out.append("|---" * (len(keys) + 2) + "|")
+    for v, b in summ["bundle_bytes"].items():
+        out.append(f"| {v} | {b['total'] / 1e6:.1f} | " + " | ".join(f"{b[k] / 1e6:.2f}" for k in keys) + " |")
+    out += ["", "## Machine (this run)", "", "| threads | DRAM copy GB/s | cache copy GB/s | sgemm 1024³ GFLOP/s | "
+            "sgemm 4×256×1024 GFLOP/s |", "|---|---|---|---|---|"]
+    for th, fl in sorted(summ["floor"].items()):
+        out.append(f"| {th} | {_med(fl['copy_dram_gbs']):.1f} | {_med(fl['copy_cache_gbs']):.1f} | "
+                   f"{_med(fl['sgemm_1024_gflops']):.1f} | {_med(fl['sgemm_rows4_256x1024_gflops']):.1f} |")
+    w = summ["step_work"]
+    out += ["", f"Step matmul weights: {w['per_stream']:,} per stream row, {w['per_prompt']:,} per prompt, "
+                f"{w['per_head_row']:,} per stream × head (relative positions), from {w['source']}."]
+    if summ["errors"]:
+        out += ["", "## Failed cases", ""] + [f"- {e.get('case')}: {e['error'][:300]}" for e in summ["errors"]]
+    return "\n".join(out) + "\n"
+
+
+# ----------------------------------------------------------------------------------------------------------------
+
+def _csv(kind):
+    return lambda s: [kind(x) for x in s.split(",") if x]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.run", description=__doc__.splitlines()[0])
+    ap.add_argument("--bundle", type=Path, default=Path("bundles/base"))
+    ap.add_argument("--checkpoints", type=Path, default=Path("checkpoints/base"),
+                    help="for the torch cases (skipped, with a note, if absent)")
+    ap.add_argument("--repeats", type=int, default=5,
+                    help="rounds: every configuration runs once per round, in its own process")
+    ap.add_argument("--per-process", type=int, default=1, help="timed repeats inside each process (default 1)")
+    ap.add_argument("--cold-repeats", type=int, default=None, help="fresh processes per variant (default: repeats)")
+    ap.add_argument("--iters", type=int, default=30, help="step calls per process and past (their median counts)")
+    ap.add_argument("--budget", type=float, default=720,
+                    help="seconds: start no new round (after 2) that would end past this; `make bench` must end "
+                         "within 15 minutes")
+    ap.add_argument("--threads", type=_csv(int), default=[1, 2])
+    ap.add_argument("--batches", type=_csv(int), default=[1, 8])
+    ap.add_argument("--variants", type=_csv(str), default=None, help="default: every variant in the manifest")
+    ap.add_argument("--no-torch", dest="torch", action="store_false")
+    ap.add_argument("--quick", action="store_true", help="smoke test: 1 repeat, few calls")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    ap.add_argument("--timeout", type=float, default=600, help="seconds per case")
+    opts = ap.parse_args(argv)
+    if opts.quick:
+        opts.repeats, opts.iters = 1, 3
+        opts.cold_repeats = opts.cold_repeats or 1
+    opts.cold_repeats = opts.cold_repeats or opts.repeats
+    opts.bundle = opts.bundle if opts.bundle.is_absolute() else (Path.cwd() / opts.bundle)
+    opts.checkpoints = opts.checkpoints if opts.checkpoints.is_absolute() else (Path.cwd() / opts.checkpoints)
+    if not (opts.bundle / "manifest.json").is_file():
+        print(f"benchmarks: no bundle at {opts.bundle} (build one with `make demo`, or pass --bundle)",
+              file=sys.stderr)
+        return 2
+    manifest = json.loads((opts.bundle / "manifest.json").read_text())
+    opts.variants = opts.variants or list(manifest["variants"])
+    notes = []
+    if opts.torch and not ((opts.checkpoints / "vq.pt").is_file() and (opts.checkpoints / "transformer.pt").is_file()):
+        notes.append(f"torch cases skipped: no checkpoints at {opts.checkpoints}")
+        opts.torch = False
+    notes.append(f"downsample {manifest['model']['downsample']} only: pass another --bundle for another preset")
+
+    n_jobs = sum(len(plan(opts, r)) for r in range(opts.repeats))
+    print(f"benchmarks: {opts.repeats} rounds, {n_jobs} processes on {opts.bundle} ({'; '.join(notes)})", flush=True)
+    t0 = time.perf_counter()
+    results, done, rounds = [], 0, 0
+    for rnd in range(opts.repeats):
+        elapsed = time.perf_counter() - t0
+        if rnd >= 2 and elapsed + elapsed / rnd > opts.budget:
+            notes.append(f"stopped after {rnd} of {opts.repeats} rounds to stay within --budget {opts.budget:.0f} s")
+            print(f"benchmarks: {notes[-1]}", flush=True)
+            break
+        for label, case, args, threads in plan(opts, rnd):
+            r = run_case(case, args, threads, opts.timeout)
+            r["round"] = rnd
+            results.append(r)
+            done += 1
+            status = f"ERROR {r['error'][:200]}" if "error" in r else f"{r['process_wall']:.1f} s"
+            print(f"[{done:3d}/{n_jobs}] round {rnd + 1}: {label:40s} {status}  "
+                  f"(elapsed {time.perf_counter() - t0:.0f} s)", flush=True)
+        rounds = rnd + 1
+    total = time.perf_counter() - t0
+
+    versions = {}
+    for mod in ("onnxruntime", "numpy"):
+        try:
+            versions[mod] = __import__(mod).__version__
+        except Exception:                                                       # noqa: BLE001
+            versions[mod] = None
+    cpu = platform.processor()
+    try:
+        cpu = next(ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name"))
+    except Exception:                                                           # noqa: BLE001
+        pass
+    stamp = datetime.now(timezone.utc)
+    meta = {"time": stamp.strftime("%Y-%m-%d %H:%M:%S UTC"), "bundle": str(opts.bundle),
+            "checkpoints": str(opts.checkpoints) if opts.torch else None,
+            "machine": f"{cpu}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}",
+            "versions": versions, "python": platform.python_version(), "repeats": rounds,
+            "per_process": opts.per_process,
+            "cold_repeats": opts.cold_repeats, "iters": opts.iters, "threads": opts.threads, "batches": opts.batches,
+            "variants": opts.variants, "quick": opts.quick, "notes": notes, "total_seconds": total,
+            "command": "python -m benchmarks.run " + " ".join(sys.argv[1:] if argv is None else argv),
+            "model": manifest["model"], "sampling_defaults": manifest.get("sampling_defaults")}
+    report = {"meta": meta, "summary": summarize(results, manifest, opts.bundle, opts), "results": results}
+    md = markdown(report)
+    opts.out.mkdir(parents=True, exist_ok=True)
+    json_path = opts.out / f"{stamp.strftime('%Y%m%d-%H%M%S')}.json"
+    json_path.write_text(json.dumps(report, indent=1, default=str))
+    (opts.out / "latest.md").write_text(md)
+    print()
+    print(md)
+    print(f"wrote {json_path} and {opts.out / 'latest.md'} ({total:.0f} s)")
+    return 1 if report["summary"]["errors"] else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
