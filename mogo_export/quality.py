@@ -38,7 +38,7 @@ def _pad(clips: list[np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:
     return torch.from_numpy(x), torch.tensor([len(c) for c in clips])
 
 
-def train_classifier(data: Path, out: Path, steps: int = 600, seed: int = 0, progress: bool = True) -> Path:
+def train_classifier(data: Path, out: Path, steps: int = 400, seed: int = 0, progress: bool = True) -> Path:
     """Train (once) the family classifier on single-action training clips; -> checkpoint path."""
     path = out / "classifier.pt"
     if path.exists():

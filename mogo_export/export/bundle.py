@@ -31,6 +31,7 @@ from ..checkpoint import build_from_checkpoint
 from ..models.text_encoder import get_text_encoder
 from ..models.transformer import RQHCTransformer, TransformerConfig
 from ..models.vq import MoSAVQ, VQConfig
+from .caption_index import build_caption_index, tca_manifest_section
 from .graphs import DEFAULT_OPSET, export_decoder, export_lookup, export_step
 from .text_encoder import export_text_encoder, quantize_text_encoder
 
@@ -75,7 +76,9 @@ def quantize_step(fp32: Path, int8: Path) -> dict:
 
 
 def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OPSET,
-                  int8: tuple[str, ...] = INT8_GRAPHS, log=print) -> Path:
+                  int8: tuple[str, ...] = INT8_GRAPHS, data: str | Path | None = None, log=print) -> Path:
+    """`data`: the dataset whose training captions become the TCA caption index (default: the one the
+    checkpoints were trained on, as recorded in them). Without it the bundle has no index and says so."""
     ckpt_dir, out = Path(ckpt_dir), Path(out)
     unknown = set(int8) - set(INT8_GRAPHS)
     if unknown:
@@ -107,6 +110,13 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
         graphs["lookup"] = export_lookup(vq, tmp / "lookup.onnx", opset, {**graph_meta, "mogo.graph": "lookup"})
         graphs["decoder"] = export_decoder(vq, meta["mean"], meta["std"], tmp / "decoder.onnx", opset,
                                            {**graph_meta, "mogo.graph": "decoder"})
+        tca = None
+        data_root = Path(data) if data is not None else Path(meta.get("dataset", ""))
+        if data is not None or (data_root.name and (data_root / "train.txt").exists()):
+            log(f"building the TCA caption index from {data_root} ...")
+            tca = tca_manifest_section(build_caption_index(data_root, encoder, tmp / "captions.npz"))
+        else:
+            log(f"no TCA caption index: dataset {data_root} not found (pass data=... / --data)")
         for g in graphs:
             variants["fp32"][g] = {"file": f"{g}.onnx"}
             variants["int8"][g] = {"file": f"{g}.onnx"}
@@ -134,6 +144,7 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
                               "std": np.round(meta["std"], 7).tolist()},
             "text_encoder": {"name": encoder.name, "tokenizer": "tokenizer.json", **te.get("metadata", {})},
             "sampling_defaults": SAMPLING_DEFAULTS.to_dict(),
+            **({"tca": tca} if tca else {}),
             "graphs": graphs,
             "variants": variants,
             "files": files,

@@ -11,7 +11,6 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
 from .decoding import ModelDims
 from .features import FeatureLayout
@@ -54,7 +53,12 @@ class Bundle:
     layout: FeatureLayout
 
     @classmethod
-    def load(cls, path: str | Path, verify_hashes: bool = True, check_graphs: bool = True) -> "Bundle":
+    def load(cls, path: str | Path, verify_hashes: bool = True, check_graphs: bool = True,
+             variants: list[str] | None = None) -> "Bundle":
+        """`variants`: check only the files these variants use (plus every non-graph file); None = all.
+
+        A generator that runs int8 then never reads (or hashes) the 90 MB fp32 text encoder: cold start drops
+        from ~1.9 s to ~0.7 s on a base bundle (benchmarks/NOTES.md)."""
         path = Path(path)
         mpath = path / "manifest.json"
         if not path.is_dir():
@@ -72,6 +76,13 @@ class Bundle:
             raise BundleError(f"{where}: field 'schema_version' is {manifest.get('schema_version')!r}; this runtime "
                               f"reads version {SCHEMA_VERSION}")
         files = _require(manifest, "files", where, dict)
+        if variants is not None:
+            declared = _require(manifest, "variants", where, dict)
+            unknown = [v for v in variants if v not in declared]
+            if unknown:
+                raise BundleError(f"{path}: unknown variant(s) {unknown}; this bundle has {sorted(declared)}")
+            used = {e.get("file") for v in variants for e in declared[v].values() if isinstance(e, dict)}
+            files = {n: e for n, e in files.items() if n in used or not n.endswith(".onnx")}
         for name, entry in files.items():
             fpath = path / name
             if not fpath.is_file():
@@ -101,7 +112,7 @@ class Bundle:
             for graph in GRAPHS:
                 bundle.graph_file(graph, variant)   # every variant names every graph, and the file is listed
         if check_graphs:
-            bundle.check_graph_signatures()
+            bundle.check_graph_signatures(variants)
         return bundle
 
     @property
@@ -123,14 +134,14 @@ class Bundle:
             raise BundleError(f"{self.path}: {name!r} is not part of this bundle")
         return self.path / name
 
-    def check_graph_signatures(self) -> None:
+    def check_graph_signatures(self, variants: list[str] | None = None) -> None:
         """Each graph file declares the inputs/outputs (names, element types, ranks) that the manifest lists."""
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
         seen: set[Path] = set()
-        for variant in self.variants:
+        for variant in variants or self.variants:
             for graph in GRAPHS:
                 fpath = self.graph_file(graph, variant)
                 if fpath in seen:
@@ -164,6 +175,3 @@ class Bundle:
         extra = [n for n in self.manifest["files"] if not n.endswith(".onnx")]
         return sum(self.manifest["files"][n]["bytes"] for n in names | set(extra))
 
-
-def load_array(path: Path) -> np.ndarray:
-    return np.load(path, allow_pickle=False)
