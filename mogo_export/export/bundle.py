@@ -58,9 +58,10 @@ def model_facts(vq: MoSAVQ, tr: RQHCTransformer, fps: float, max_tokens: int) ->
 
 
 def quantize_step(fp32: Path, int8: Path) -> dict:
-    """Dynamic int8 for the step graph: MatMuls with constant weights; per_channel=False (FACTS.md: per-channel
-    fails at run time on 3-D weights), QInt8 weights."""
-    options = {"per_channel": False, "weight_type": "QInt8", "op_types": ["MatMul", "Gemm"]}
+    """Dynamic int8 for the step graph: MatMuls with constant weights, QInt8, per output channel. Per-channel
+    fails at run time on 3-D weights (FACTS.md), but every transformer weight is 2-D (a test checks it); on the
+    base model it raised int8/fp32 greedy token agreement from 0.70 to 0.81 and cut joint error 44 -> 13 mm."""
+    options = {"per_channel": True, "weight_type": "QInt8", "op_types": ["MatMul", "Gemm"]}
     # The quantizer rewrites Gemm weights in place, and the exporter's value_info for those initializers then
     # contradicts shape inference ("Inferred shape and existing shape differ"): quantize a copy without it.
     model = onnx.load(str(fp32))
@@ -68,7 +69,7 @@ def quantize_step(fp32: Path, int8: Path) -> dict:
     bare = int8.with_suffix(".bare.onnx")
     onnx.save(model, str(bare))
     try:
-        quantize_dynamic(str(bare), str(int8), per_channel=False, weight_type=QuantType.QInt8,
+        quantize_dynamic(str(bare), str(int8), per_channel=True, weight_type=QuantType.QInt8,
                          op_types_to_quantize=["MatMul", "Gemm"])
     finally:
         bare.unlink(missing_ok=True)

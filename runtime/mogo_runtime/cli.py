@@ -3,6 +3,12 @@
     mogo generate "a person walks forward and then jumps" -o walk.bvh -o walk.gif --seconds 6 --seed 1
     mogo stream "a person waves" --seed 2 | my_game        # one JSON line per frame on stdout
     mogo info bundles/base                                  # graphs, variants, sizes, dims, verified hashes
+    mogo generate "yo make the dude do a lil hop" --align -o hop.bvh   # TCA: prompt rewritten in caption style
+
+`--align` conditions on the prompt rewritten into the training captions' style (TCA, mogo_runtime/tca.py): offline
+with the bundle's caption index, or with `--rewriter-url URL --rewriter-model NAME` by an OpenAI-compatible chat
+endpoint (key from $MOGO_TCA_API_KEY), falling back to the offline aligner when it fails. The aligned text is
+printed on stderr.
 
 The bundle is `--bundle PATH`, else $MOGO_BUNDLE, else bundles/base. Bad input ends with one line on stderr
 starting with "mogo: error:" and exit status 2, as argparse does, never with a traceback.
@@ -14,6 +20,8 @@ import json
 import os
 import sys
 import time
+import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 from .bundle import GRAPHS, Bundle, BundleError, sha256_file
@@ -57,6 +65,12 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--top-p", type=float, help="nucleus sampling mass in (0, 1]; default: the bundle's")
         p.add_argument("--guidance", type=float, help="classifier-free guidance scale, 1 = off; default: the bundle's")
         p.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+        p.add_argument("--align", action=argparse.BooleanOptionalAction, default=None,
+                       help="rewrite the prompt into the training captions' style first (TCA; default: off)")
+        p.add_argument("--rewriter-url", metavar="URL",
+                       help="TCA with an OpenAI-compatible chat endpoint (implies --align; key from "
+                            "$MOGO_TCA_API_KEY); falls back to the offline aligner if it fails")
+        p.add_argument("--rewriter-model", metavar="NAME", help="model name for --rewriter-url (default: 'default')")
 
     gen = sub.add_parser("generate", help="write motion files (" + ", ".join(SAVE_FORMATS) + ")",
                          description="Generate one motion and write it to every -o file (format by extension: "
@@ -110,7 +124,34 @@ def _load_generator(args):
                               f"with `make demo`") from None
         raise
     # no argparse default for --variant: argparse would then miss "--int8 --variant fp32" as a conflict
-    return MotionGenerator(bundle, variant=args.variant or "fp32", threads=args.threads)
+    gen = MotionGenerator(bundle, variant=args.variant or "fp32", threads=args.threads)
+    if args.rewriter_url:
+        from .tca import ChatRewriter
+
+        gen = MotionGenerator(bundle, variant=args.variant or "fp32", threads=args.threads,
+                              aligner=ChatRewriter(args.rewriter_url, args.rewriter_model or "default",
+                                                   fallback=gen.aligner))
+    return gen
+
+
+def _align(args) -> bool:
+    if args.rewriter_model and not args.rewriter_url:
+        raise UsageError("--rewriter-model needs --rewriter-url")
+    if args.rewriter_url and args.align is False:
+        raise UsageError("--rewriter-url and --no-align contradict each other")
+    return bool(args.rewriter_url) if args.align is None else args.align
+
+
+@contextmanager
+def _warnings_as_lines():
+    """Library warnings (a TCA fallback, a bundle without caption index) as one `mogo: warning:` line each."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            yield
+        finally:
+            for w in caught:
+                print(f"mogo: warning: {w.message}", file=sys.stderr)
 
 
 def _sampling(args) -> dict:
@@ -125,6 +166,7 @@ def _check_text(text: str) -> None:
 
 def cmd_generate(args) -> int:
     _check_text(args.text)
+    align = _align(args)
     for out in args.output:            # before any work: a typo should not cost a generation
         check_output_path(out)
     gen = _load_generator(args)
@@ -136,11 +178,14 @@ def cmd_generate(args) -> int:
         print(f"\rmogo: generating, token {step}/{limit}", end="", file=sys.stderr, flush=True)
 
     start = time.perf_counter()
-    motion = gen.generate(args.text, seconds=args.seconds, seed=args.seed, progress=progress if show else None,
-                          **_sampling(args))
+    with _warnings_as_lines():
+        motion = gen.generate(args.text, seconds=args.seconds, seed=args.seed, progress=progress if show else None,
+                              align=align, **_sampling(args))
     took = time.perf_counter() - start
     if show:
         print(file=sys.stderr)
+    if align:
+        print(f"mogo: aligned prompt: {motion.aligned_text!r}", file=sys.stderr)
     if fixed:
         ended = "fixed length"
     else:
@@ -154,8 +199,12 @@ def cmd_generate(args) -> int:
 
 def cmd_stream(args) -> int:
     _check_text(args.text)
+    align = _align(args)
     gen = _load_generator(args)
-    frames = gen.stream(args.text, seconds=args.seconds, seed=args.seed, **_sampling(args))
+    with _warnings_as_lines():
+        frames = gen.stream(args.text, seconds=args.seconds, seed=args.seed, align=align, **_sampling(args))
+    if align:
+        print(f"mogo: aligned prompt: {frames.aligned_text!r}", file=sys.stderr, flush=True)
     out = sys.stdout
     try:
         for f in frames:

@@ -6,6 +6,8 @@
     motion.save("walk.bvh")
     for frame in gen.stream("a person waves", seed=2):       # frames as soon as they are decoded
         send_to_game(frame.joints)                           # (J, 3) metres, y up
+    motion = gen.generate("yo make the dude do a lil hop", align=True)   # TCA (tca.py): prompt in caption style
+    print(motion.aligned_text)                               # what the model was conditioned on
 
 The loop itself (steps, END, guidance, sampling) is `decoding.py`'s, shared with the torch reference; this
 module only computes (the backend) and checks what a user asks for (the generator).
@@ -24,6 +26,7 @@ from .decoding import FrameStreamer, ModelDims, collect_tokens, decode_tokens, g
 from .features import recover_from_ric
 from .motion import Motion, RootIntegrator
 from .sampling import SamplingConfig
+from .tca import AlignedPrompt, Aligner, OfflineAligner, apply_alignment
 from .text import TextEncoderSession, check_texts
 
 _PAST, _PRESENT = "past_key_values.", "present."
@@ -147,16 +150,59 @@ class Frame:
     joints: np.ndarray            # (J, 3) metres, y up
 
 
-class MotionGenerator:
-    """Generate motions from text with a bundle; settings left as None take the bundle's sampling_defaults."""
+class FrameStream:
+    """What `MotionGenerator.stream` returns: an iterator of Frames, plus the prompt and its aligned text."""
 
-    def __init__(self, bundle: Bundle | str | Path, variant: str = "fp32", threads: int = 2):
+    def __init__(self, frames: Iterator[Frame], text: str, aligned_text: str | None):
+        self._frames, self.text, self.aligned_text = frames, text, aligned_text
+
+    def __iter__(self) -> "FrameStream":
+        return self
+
+    def __next__(self) -> Frame:
+        return next(self._frames)
+
+    def close(self) -> None:
+        self._frames.close()
+
+
+class MotionGenerator:
+    """Generate motions from text with a bundle; settings left as None take the bundle's sampling_defaults.
+
+    `aligner`: the text condition alignment `align=True` uses (tca.py); default the bundle's OfflineAligner.
+    """
+
+    def __init__(self, bundle: Bundle | str | Path, variant: str = "fp32", threads: int = 2,
+                 aligner: Aligner | None = None):
         self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle)
         self.backend = OrtBackend(self.bundle, variant, threads)
         self.dims = self.bundle.dims
         self.skeleton = self.bundle.skeleton
         self.max_tokens = int(self.bundle.manifest["model"]["max_tokens"])
         self.defaults = dict(self.bundle.manifest.get("sampling_defaults") or {})
+        self._aligner = aligner
+
+    @property
+    def aligner(self) -> Aligner:
+        """The aligner of `align=True`: the one given, else the bundle's offline one (built on first use)."""
+        if self._aligner is None:
+            self._aligner = OfflineAligner(self.bundle, self.backend)
+        return self._aligner
+
+    def align(self, texts: list[str], align: bool | Aligner = True) -> list[AlignedPrompt] | None:
+        """The aligned prompts for `texts` (None when `align` is False): `align` is True or an Aligner."""
+        if align is False or align is None:
+            return None
+        aligner = self.aligner if align is True else align
+        if not isinstance(aligner, Aligner):
+            raise ValueError(f"align must be True, False or a mogo_runtime.tca.Aligner, got {align!r}")
+        return aligner.align_batch(texts)
+
+    def _condition(self, texts: list[str], align) -> tuple[np.ndarray, list[str | None]]:
+        prompts = self.align(texts, align)
+        if prompts is None:
+            return self.backend.encode_text(texts), [None] * len(texts)
+        return apply_alignment(prompts, self.backend.encode_text), [p.text for p in prompts]
 
     @property
     def variant(self) -> str:
@@ -168,37 +214,40 @@ class MotionGenerator:
 
     def generate(self, text: str | list[str], seconds: float | None = None, seed: int | list[int] = 0,
                  temperature: float | None = None, top_k: int | None = None, top_p: float | None = None,
-                 guidance: float | None = None,
-                 progress: Callable[[int, int], None] | None = None) -> Motion | list[Motion]:
+                 guidance: float | None = None, progress: Callable[[int, int], None] | None = None,
+                 align: bool | Aligner = False) -> Motion | list[Motion]:
         """One motion per prompt (a list for a list), all prompts in one batched loop.
 
         Prompt i of a list uses seed `seed + i` (or `seed[i]`), so it gets the motion a lone run with that
         seed gets. `seconds` fixes the length (rounded to whole tokens, END never chosen); None lets the
         model end the motion, at most `max_seconds`. `progress(step, limit)` is called after every step.
+        `align=True` (or an Aligner) rewrites each prompt into the training captions' style first (TCA,
+        tca.py); the motion's `aligned_text` says what the model was conditioned on.
         """
         texts = [text] if isinstance(text, str) else text
         texts = check_texts(texts)
         fixed = self.tokens_for(seconds)
         sampling = self.sampling_config(temperature, top_k, top_p, guidance)
         seeds = _check_seeds(seed, len(texts))
-        emb = self.backend.encode_text(texts)
+        emb, aligned = self._condition(texts, align)
         steps = generate_tokens(self.backend, emb, sampling, make_rngs(seeds, len(texts)), self.max_tokens, fixed)
         if progress is not None:
             steps = _report(steps, progress, fixed or self.max_tokens)
         token_seqs = collect_tokens(steps, len(texts), self.dims.num_levels)
         features = decode_tokens(self.backend, token_seqs)
         motions = [Motion(text=t, features=f, joints=recover_from_ric(f, self.skeleton.num_joints),
-                          fps=self.dims.fps, tokens=tok, skeleton=self.skeleton, seed=s)
-                   for t, f, tok, s in zip(texts, features, token_seqs, seeds)]
+                          fps=self.dims.fps, tokens=tok, skeleton=self.skeleton, seed=s, aligned_text=a)
+                   for t, f, tok, s, a in zip(texts, features, token_seqs, seeds, aligned)]
         return motions[0] if isinstance(text, str) else motions
 
     def stream(self, text: str, seconds: float | None = None, seed: int = 0, temperature: float | None = None,
                top_k: int | None = None, top_p: float | None = None,
-               guidance: float | None = None) -> Iterator[Frame]:
+               guidance: float | None = None, align: bool | Aligner = False) -> FrameStream:
         """Yield the frames of one prompt's motion as each token is sampled and decoded.
 
         The causal decoder makes them equal to `generate(text, ..., seed=seed)`'s frames (to float rounding).
-        Arguments are checked when this is called, before the first frame is asked for.
+        Arguments are checked, and the prompt aligned (`align`, as in generate), when this is called, before
+        the first frame is asked for; the returned stream's `aligned_text` says what the model follows.
         """
         if not isinstance(text, str):
             raise TypeError(f"stream() takes one prompt (str), got {type(text).__name__}; use generate() for a batch")
@@ -206,10 +255,10 @@ class MotionGenerator:
         fixed = self.tokens_for(seconds)
         sampling = self.sampling_config(temperature, top_k, top_p, guidance)
         seeds = _check_seeds(seed, 1)
-        return self._stream(text, fixed, sampling, seeds)
+        emb, aligned = self._condition([text], align)
+        return FrameStream(self._stream(emb, fixed, sampling, seeds), text, aligned[0])
 
-    def _stream(self, text, fixed, sampling, seeds) -> Iterator[Frame]:
-        emb = self.backend.encode_text([text])
+    def _stream(self, emb, fixed, sampling, seeds) -> Iterator[Frame]:
         streamer = FrameStreamer(self.backend, 1)
         integrator = RootIntegrator(self.skeleton.num_joints)
         index = 0

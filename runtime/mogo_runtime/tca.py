@@ -7,7 +7,7 @@ edge device has none, so the default here is offline and ships inside the bundle
     from mogo_runtime.tca import OfflineAligner, ChatRewriter
     aligner = OfflineAligner(bundle, text_session)          # bundle has captions.npz (manifest section "tca")
     aligned = aligner.align("guy starts jogging real quick, then sits")
-    aligned.text        # 'a person jogs forward quickly. and then sits down' style text, see `method`
+    aligned.text        # e.g. 'a person jogs forward slowly and then sits down.' (see `method`)
     aligned.embedding   # None, or an embedding to condition on instead of encoding `text` (method "blend")
 
 `OfflineAligner` (1) normalises the wording: lowercase, emojis to words, filler / slang / politeness dropped, the
@@ -202,7 +202,7 @@ _HELPERS = {"is", "are", "was", "were", "be", "been", "being", "am", "will", "wo
             "could", "may", "might", "must", "going", "goes", "go", "went", "to", "start", "starts", "started",
             "starting", "begin", "begins", "began", "beginning", "keep", "keeps", "kept", "keeping", "try", "tries",
             "tried", "want", "wants", "wanted", "need", "needs", "needed", "got", "get", "gets", "has", "have",
-            "had", "just", "then", "now", "also", "suddenly", "quickly_", "proceeds", "proceed", "decides",
+            "had", "just", "then", "now", "also", "suddenly", "proceeds", "proceed", "decides",
             "decide", "decided", "continue", "continues", "continued", "please", "do", "does", "did", "and",
             "gonna", "wanna", "gotta", "finally", "first", "next", "afterwards", "lastly", "again"}
 # Words that carry no motion: dropped anywhere (multi-word fillers first).
@@ -215,13 +215,13 @@ _FILLER_PHRASES = [r"\bcan you\b", r"\bcould you\b", r"\bwould you\b", r"\bwill 
                    r"\bon (?:the )?(?:screen|camera)\b", r"\bin the (?:game|scene|animation|video)\b",
                    r"\blike a (?:boss|pro|champ|maniac|madman|crazy person)\b", r"\ball of a sudden\b",
                    r"\bnothing (?:fancy|special|crazy|complicated|else)\b"]
-_FILLERS = {"yo", "hey", "hi_", "ok", "okay", "so", "um", "uh", "umm", "erm", "hmm", "like", "just", "pls", "plz",
-            "please", "lol", "lmao", "rofl", "bro", "bruh", "fam", "ngl", "tbh", "fr", "rn", "omg", "man_",
+_FILLERS = {"yo", "hey", "ok", "okay", "so", "um", "uh", "umm", "erm", "hmm", "like", "just", "pls", "plz",
+            "please", "lol", "lmao", "rofl", "bro", "bruh", "fam", "ngl", "tbh", "fr", "rn", "omg",
             "lil", "little", "some", "really", "real", "super", "totally", "literally", "basically", "actually",
             "very", "pretty", "quite", "kinda", "sorta", "now", "cool", "nice", "awesome", "epic", "dope", "sick",
             "gently", "casually", "happily", "sadly", "angrily", "excitedly", "proudly", "nervously", "lazily",
-            "aight", "alright", "well", "hella", "mad", "lowkey", "highkey", "simply", "nicely", "quick_",
-            "the_", "tho", "though", "anyway", "anyways", "oh", "wow", "yeah", "yep", "sure", "go_", "ahead_"}
+            "aight", "alright", "well", "hella", "mad", "lowkey", "highkey", "simply", "nicely",
+            "tho", "though", "anyway", "anyways", "oh", "wow", "yeah", "yep", "sure"}
 
 # Multi-word rewrites into caption phrasing, applied before verbs are found (base forms; inflected later).
 _PHRASES = [
@@ -282,18 +282,18 @@ _SYNONYMS = {
     "stroll": "walk", "amble": "walk", "saunter": "walk", "stride": "walk", "strut": "walk", "wander": "walk",
     "trudge": "walk", "mosey": "walk", "hike": "walk", "march": "walk", "tread": "walk", "pace": "walk",
     "waddle": "walk", "stomp": "walk", "tiptoe": "walk", "promenade": "walk", "trek": "walk", "advance": "walk",
-    "proceed_": "walk", "retreat": "walk backward", "recede": "walk backward",
+    "retreat": "walk backward", "recede": "walk backward",
     "jog": "run", "sprint": "run", "dash": "run", "race": "run", "rush": "run", "bolt": "run", "scurry": "run",
     "hustle": "run", "zoom": "run", "gallop": "run", "scamper": "run", "charge": "run", "speed": "run",
     "hop": "jump", "leap": "jump", "bounce": "jump", "spring": "jump", "bound": "jump", "vault": "jump",
     "skip": "jump", "pounce": "jump", "lunge": "jump",
     "greet": "wave", "salute": "wave", "hail": "wave", "beckon": "wave",
-    "boot": "kick", "punt": "kick", "stomp_": "kick",
+    "boot": "kick", "punt": "kick", 
     "crouch": "squat", "kneel": "squat", "duck": "squat", "hunker": "squat", "dip": "squat", "stoop": "squat",
     "rotate": "turn", "pivot": "turn", "spin": "turn", "twirl": "turn", "swivel": "turn", "whirl": "turn",
     "sit": "sit", "perch": "sit", "settle": "sit",
     "hit": "punch", "strike": "punch", "jab": "punch", "box": "punch", "sock": "punch", "smack": "punch",
-    "slug": "punch", "pummel": "punch", "spar": "punch", "fight": "punch", "uppercut": "punch", "swing_": "punch",
+    "slug": "punch", "pummel": "punch", "spar": "punch", "fight": "punch", "uppercut": "punch", 
     "applaud": "clap", "cheer": "clap",
     "shuffle": "sidestep", "slide": "sidestep", "scoot": "sidestep", "strafe": "sidestep",
     "lift": "raise", "hoist": "raise", "elevate": "raise", "reach": "raise", "hold": "raise",
@@ -362,14 +362,16 @@ def _third_person(base: str) -> str:
 class WordingNormalizer:
     """Free-form prompt -> ordered clauses (verb phrases, present tense, 3rd person) in the captions' vocabulary.
 
-    `vocabulary`: the words of the training captions (from the caption index); without it the synonym table is
-    applied to every verb it knows and unknown words are kept.
+    `vocabulary`: the words of the training captions (from the caption index): verbs the captions lack are mapped
+    through the synonym table, words they never use are dropped. Without it the user's verbs are only conjugated
+    and every word is kept. `caption_verbs`: the verbs the captions use (`caption_verbs()`), so that they are
+    recognised as verbs.
     """
 
     def __init__(self, vocabulary: set[str] | None = None, caption_verbs: set[str] | None = None):
         self.vocabulary = set(vocabulary) if vocabulary else None
         verbs = set(_SYNONYMS) | set(_SYNONYMS.values()) | set(_NOUN_VERBS.values())
-        verbs = {v for v in verbs if " " not in v and not v.endswith("_")}
+        verbs = {v for v in verbs if " " not in v}
         verbs |= {"walk", "run", "jump", "wave", "kick", "squat", "turn", "sit", "punch", "clap", "sidestep",
                   "raise", "stand", "bow", "step", "take", "make", "do", "throw", "swing", "bend", "lower", "lift",
                   "move", "hop", "leap", "jog", "sprint", "spin", "box", "jab", "applaud", "shuffle", "put", "bring",
@@ -413,9 +415,6 @@ class WordingNormalizer:
 
     def is_verb(self, word: str) -> bool:
         return self.base(word) in self.verbs
-
-    def known(self, word: str) -> bool:
-        return self.vocabulary is None or word in self.vocabulary
 
     def conjugate(self, base: str) -> str:
         """Base -> 3rd person present, mapped into the caption vocabulary through the synonym table if needed."""
@@ -521,6 +520,7 @@ class WordingNormalizer:
         return out
 
     def _find_verb(self, words: list[str]) -> int | None:
+        """Index of the action verb: the first motion verb, else the first light one ("takes a seat", "does ...")."""
         weak = {"do", "go", "get", "have", "start", "keep", "make", "take"}
         first_weak = None
         for i, w in enumerate(words):
@@ -528,14 +528,9 @@ class WordingNormalizer:
                 continue
             b = self.base(w)
             if b in self.verbs:
-                if b in weak and w not in {"takes", "makes", "does"}:
-                    if first_weak is None:
-                        first_weak = i
-                    continue
-                if b in weak:
-                    first_weak = i if first_weak is None else first_weak
-                    continue
-                return i
+                if b not in weak:
+                    return i
+                first_weak = i if first_weak is None else first_weak
         return first_weak
 
     def _tidy(self, words: list[str], verb_at: int | None) -> list[str]:
