@@ -80,7 +80,8 @@ class Bundle:
             declared = _require(manifest, "variants", where, dict)
             unknown = [v for v in variants if v not in declared]
             if unknown:
-                raise BundleError(f"{path}: unknown variant(s) {unknown}; this bundle has {sorted(declared)}")
+                raise BundleError(f"{path}: unknown variant {', '.join(map(repr, unknown))}; this bundle has "
+                                  f"{', '.join(declared)}")
             used = {e.get("file") for v in variants for e in declared[v].values() if isinstance(e, dict)}
             files = {n: e for n, e in files.items() if n in used or not n.endswith(".onnx")}
         for name, entry in files.items():

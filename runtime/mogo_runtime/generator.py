@@ -174,7 +174,8 @@ class MotionGenerator:
 
     def __init__(self, bundle: Bundle | str | Path, variant: str = "fp32", threads: int = 2,
                  aligner: Aligner | None = None):
-        self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle)
+        # Only the chosen variant's files are hashed and checked: an int8 run never reads the fp32 text encoder.
+        self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle, variants=[variant])
         self.backend = OrtBackend(self.bundle, variant, threads)
         self.dims = self.bundle.dims
         self.skeleton = self.bundle.skeleton
