@@ -354,3 +354,15 @@ def test_cli_align_flags(capsys, tmp_path, indexed_bundle, toy_bundle):  # noqa:
     assert code == 0 and "mogo: warning: TCA rewriter" in captured.err
     assert "aligned prompt: 'a person turns around.'" in captured.err
     assert len(captured.out.splitlines()) == 8
+
+
+def test_an_exported_bundle_ships_its_caption_index(tiny_bundle):
+    """mogo-export writes captions.npz and the manifest's `tca` section; the runtime picks them up."""
+    gen = MotionGenerator(tiny_bundle)
+    tca = gen.bundle.manifest["tca"]
+    assert gen.aligner.has_index and len(gen.aligner.index) == tca["count"] > 0
+    assert gen.aligner.index.dim == gen.dims.text_dim and gen.aligner.method == tca["method"]
+    caption = gen.aligner.index.captions[0]
+    a = gen.aligner.align(caption)
+    assert a.details["neighbours"][0][0][1] > 0.95                       # a training caption finds itself
+    assert gen.generate(caption, seed=0, align=True).aligned_text == a.text
