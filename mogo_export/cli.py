@@ -65,9 +65,13 @@ def _quality(args) -> int:
 
 def _ablation(args) -> int:
     """MoSA-VQ with and without learnable scaling: same preset, budget and seed; test-split MPJPE."""
+    import torch
+
     from .quality import vq_reconstruction
     from .train import train_vq
 
+    if args.threads:
+        torch.set_num_threads(args.threads)
     rows = {}
     for name, scaling in (("with learnable scaling", True), ("without learnable scaling", False)):
         out = args.out / ("scaling" if scaling else "no-scaling")
@@ -93,7 +97,7 @@ def _evaluate(args) -> int:
     protocol = ProtocolConfig(repeats=args.repeats, split=args.split, length=args.length, seed=args.seed,
                               mm_captions=args.mm_captions, mm_generations=args.mm_generations)
     req = EvaluateRequest(args.data, args.checkpoints, args.bundle, args.variant, args.evaluator, args.glove,
-                          args.t2m_meta, args.vq_ablation or [], protocol, args.threads)
+                          args.t2m_meta, args.vq_ablation or [], protocol, args.threads, args.tca)
     report = evaluate(req)
     print_report(report)
     if args.json:
@@ -153,6 +157,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--preset", choices=["tiny", "base", "paper"], default="base")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     p.set_defaults(run=_ablation)
 
     p = sub.add_parser("train-evaluator", help="train the text-motion contrastive evaluator the metrics use")
@@ -168,6 +173,7 @@ def main(argv=None) -> int:
     p.add_argument("--checkpoints", type=Path, default=None, help="rows: VQ reconstruction and torch generation")
     p.add_argument("--bundle", type=Path, default=None, help="rows: the bundle's variants, via mogo_runtime")
     p.add_argument("--variant", action="append", default=None, help="fp32 or int8 (repeatable; default: all)")
+    p.add_argument("--tca", action="store_true", help="also a row per variant with TCA-aligned prompts")
     p.add_argument("--evaluator", type=Path, default=None,
                    help="evaluator.pt, or Guo et al.'s finest.tar / t2m folder (default: <data>/evaluator.pt, "
                         "trained if missing)")

@@ -239,23 +239,25 @@ def torch_source(ckpt_dir: Path, sampling: SamplingConfig, length: str = "model"
 
 
 def bundle_source(bundle: Path, variant: str, sampling: SamplingConfig | None = None, length: str = "model",
-                  chunk: int = 32, threads: int = 2, name: str | None = None) -> MotionSource:
-    """A bundle through mogo_runtime's MotionGenerator (the code a game runs); sampling None = the bundle's."""
+                  chunk: int = 32, threads: int = 2, align: bool = False, name: str | None = None) -> MotionSource:
+    """A bundle through mogo_runtime's MotionGenerator (the code a game runs); sampling None = the bundle's.
+    `align`: condition on the TCA-aligned prompts (the paper's "w/ TCA" rows)."""
     from mogo_runtime.generator import MotionGenerator
 
     gen = MotionGenerator(bundle, variant=variant, threads=threads)
     s = sampling or gen.sampling_config()
     per_token = gen.dims.downsample / gen.dims.fps
+    extra = {"align": True} if align else {}
 
     def generate(texts, seeds, tokens):
         # top_k=0 and top_p=1.0 mean "no cut" (None would mean the bundle's default)
         motions = gen.generate(texts, seconds=None if tokens is None else tokens * per_token, seed=seeds,
                                temperature=s.temperature, top_k=s.top_k or 0, top_p=s.top_p or 1.0,
-                               guidance=s.guidance)
+                               guidance=s.guidance, **extra)
         return [m.features for m in motions]
 
-    return MotionSource(name or f"MOGO bundle {variant}", _by_length(generate, gen.dims.downsample, length, chunk),
-                        stochastic=True)
+    name = name or f"MOGO bundle {variant}" + (" + TCA" if align else "")
+    return MotionSource(name, _by_length(generate, gen.dims.downsample, length, chunk), stochastic=True)
 
 
 def bundle_sampling(bundle: Path) -> SamplingConfig:
@@ -508,6 +510,7 @@ class EvaluateRequest:
     vq_ablation: list[Path] = field(default_factory=list)
     protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
     threads: int = 2
+    tca: bool = False                          # also each bundle variant with TCA-aligned prompts
 
 
 def evaluate(req: EvaluateRequest, progress: bool = True) -> dict:
@@ -532,6 +535,8 @@ def evaluate(req: EvaluateRequest, progress: bool = True) -> dict:
             if v not in available:
                 raise ValueError(f"bundle {req.bundle} has no variant {v!r}; it has {', '.join(available)}")
             sources.append(bundle_source(req.bundle, v, sampling, cfg.length, threads=req.threads))
+            if req.tca:
+                sources.append(bundle_source(req.bundle, v, sampling, cfg.length, threads=req.threads, align=True))
     ablation_names, ablation_paths = [], {}
     for path in req.vq_ablation:
         payload = read_checkpoint(path, "vq")

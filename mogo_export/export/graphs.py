@@ -28,25 +28,18 @@ class StepGraph(nn.Module):
     """The transformer's `step`, with caches laid out per prompt: [batch, L * n_heads, past, head_dim].
 
     Inside the model the L level streams are rows b*L + l; folding them into the head axis keeps `batch` the one
-    batch dim a consumer sees, and the reshape is free.
+    batch dim a consumer sees. The model concatenates in this layout, so each `present` is a Concat's output
+    (no copy after it) and attention reads it through a reshape.
     """
 
     def __init__(self, model: RQHCTransformer):
         super().__init__()
         self.model = model
-        c = model.cfg
-        self.L, self.H, self.hd = c.num_levels, c.n_heads, c.d_model // c.n_heads
 
     def forward(self, text_embedding, tokens, *past_flat):
-        B = tokens.shape[0]
-        L, H, hd = self.L, self.H, self.hd
-        past = [(past_flat[2 * i].reshape(B * L, H, -1, hd), past_flat[2 * i + 1].reshape(B * L, H, -1, hd))
-                for i in range(len(past_flat) // 2)]
+        past = [(past_flat[2 * i], past_flat[2 * i + 1]) for i in range(len(past_flat) // 2)]
         logits, presents = self.model.step(text_embedding, tokens, past)
-        out = [logits]
-        for k, v in presents:
-            out += [k.reshape(B, L * H, -1, hd), v.reshape(B, L * H, -1, hd)]
-        return tuple(out)
+        return (logits, *(t for kv in presents for t in kv))
 
 
 class LookupGraph(nn.Module):

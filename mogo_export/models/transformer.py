@@ -76,14 +76,23 @@ class RelativeSelfAttention(nn.Module):
         self.resid_drop = nn.Dropout(cfg.dropout)
 
     def forward(self, x, past_k, past_v):
-        """x (N, S, C); past_k/v (N, H, P, hd) -> y (N, S, C), present k/v (N, H, P+S, hd)."""
+        """x (N, S, C); past_k/v (N, H, P, hd) -> y (N, S, C), present k/v (N, H, P+S, hd).
+
+        The cache may also come in any layout (R, N*H/R, P, hd) that folds the same rows, e.g. the bundle's
+        [batch, L*H, P, hd]; presents come back in the caller's layout. Concatenating there matters for the
+        exported step: the Concat result is the graph output itself, where a Reshape after it would copy
+        the whole cache once more per step.
+        """
         N, S, C = x.shape
         H, hd = self.n_heads, self.head_dim
         P = past_k.shape[2]
         q, k, v = self.qkv(x).split(C, dim=2)
         q = q.view(N, S, H, hd).transpose(1, 2)  # (N, H, S, hd)
-        k = torch.cat([past_k, k.view(N, S, H, hd).transpose(1, 2)], dim=2)  # (N, H, P+S, hd)
-        v = torch.cat([past_v, v.view(N, S, H, hd).transpose(1, 2)], dim=2)  # (N, H, P+S, hd)
+        rows = past_k.shape[0]
+        present_k = torch.cat([past_k, k.view(N, S, H, hd).transpose(1, 2).reshape(rows, -1, S, hd)], dim=2)
+        present_v = torch.cat([past_v, v.view(N, S, H, hd).transpose(1, 2).reshape(rows, -1, S, hd)], dim=2)
+        k = present_k.reshape(N, H, P + S, hd)
+        v = present_v.reshape(N, H, P + S, hd)
 
         content = (q + self.u.unsqueeze(1)) @ k.transpose(-2, -1)  # (N, H, S, P+S)
         qv = (q + self.v.unsqueeze(1)).unsqueeze(3) * self.head_mask.view(1, H, 1, H, hd)  # (N, H, S, H, hd)
@@ -96,7 +105,7 @@ class RelativeSelfAttention(nn.Module):
         att = att.masked_fill(dist < 0, float("-inf")).softmax(dim=-1)
         y = self.attn_drop(att) @ v  # (N, H, S, hd)
         y = y.transpose(1, 2).reshape(N, S, C)  # (N, S, C)
-        return self.resid_drop(self.proj(y)), k, v
+        return self.resid_drop(self.proj(y)), present_k, present_v
 
 
 class MLP(nn.Module):
@@ -184,8 +193,9 @@ class RQHCTransformer(nn.Module):
         """One call of the decoder with a KV cache; serves full sequences, prefill, chunks and single steps.
 
         text_emb (B, text_dim) float; tokens (B, S, L) int64 (BOS where the PnQ prefix goes, i.e. step 0);
-        past: per layer (key, value), each (B*L, n_heads, P, head_dim), P >= 0 (see `empty_past`).
-        Returns logits (B, S, L, K+1) and presents: per layer (key, value), each (B*L, n_heads, P+S, head_dim).
+        past: per layer (key, value), each (B*L, n_heads, P, head_dim), P >= 0 (see `empty_past`), or the same
+        rows folded as (B, L*n_heads, P, head_dim) (the bundle's layout).
+        Returns logits (B, S, L, K+1) and presents: per layer (key, value) in the layout of `past`, length P+S.
         """
         B, S, L = tokens.shape
         x = self.drop(self._inputs(text_emb, tokens))  # (B*L, S, C)

@@ -30,12 +30,11 @@ the caller's choice of `units`.
 """
 from __future__ import annotations
 
-import os
-import secrets
 from pathlib import Path
 
 import numpy as np
 
+from .files import write_atomic
 from .skeleton import HUMANML3D, Skeleton
 
 _UNIT_SCALE = {"cm": 100.0, "m": 1.0}
@@ -68,7 +67,8 @@ def write_bvh(path, joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, u
     """Write `joints` (T, J, 3) in metres as a BVH file at `path` (atomically). Returns the path."""
     text = joints_to_bvh_text(joints, skeleton, fps, units)
     path = Path(path)
-    _write_atomic(path, text.encode("ascii"))
+    data = text.encode("ascii")
+    write_atomic(path, lambda f: f.write(data))
     return path
 
 
@@ -293,19 +293,6 @@ def _format(pos, offsets, euler, skeleton: Skeleton, fps: float, scale: float) -
 
 def _channels(order: str) -> str:
     return " ".join(f"{a}rotation" for a in order)
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # A fresh name opened with open(), not mkstemp: the file gets the usual umask permissions, not 0600.
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
-    try:
-        with open(tmp, "xb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 # ----------------------------------------------------------------------------------------------------

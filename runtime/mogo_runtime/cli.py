@@ -64,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--top-k", type=int, help="keep the k likeliest codes, 0 = all; default: the bundle's")
         p.add_argument("--top-p", type=float, help="nucleus sampling mass in (0, 1]; default: the bundle's")
         p.add_argument("--guidance", type=float, help="classifier-free guidance scale, 1 = off; default: the bundle's")
-        p.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+        p.add_argument("--threads", type=int, default=1,
+                       help="onnxruntime threads (default 1: fastest per step on a busy machine)")
         p.add_argument("--align", action=argparse.BooleanOptionalAction, default=None,
                        help="rewrite the prompt into the training captions' style first (TCA; default: off)")
         p.add_argument("--rewriter-url", metavar="URL",

@@ -123,23 +123,45 @@ def decode_tokens(backend: Backend, token_seqs: list[np.ndarray]) -> list[np.nda
 
 
 class FrameStreamer:
-    """Turns tokens into frames as they arrive, decoding only the window a new frame depends on.
+    """Turns tokens into frames as they arrive, decoding only the window the new frames depend on.
 
-    Holds a fixed (B, window, L) ring of recent tokens, so a step allocates nothing the size of the motion.
+    The first token is decoded at once (time to first frame); later tokens are decoded `chunk` at a time,
+    each decode reading receptive_field + chunk tokens. With chunk=1 every token re-decodes its whole
+    receptive field (18 tokens for 4 new frames on `base`); chunk=4 measured 343 -> 217 ms for a 196-frame
+    stream (benchmarks/NOTES.md, idea 3), its frames coming in bursts of chunk * downsample, well ahead of
+    real time. Holds a fixed (B, window, L) ring of recent tokens: nothing the size of the motion.
     """
 
-    def __init__(self, backend: Backend, batch: int):
-        self.backend = backend
-        self.window = backend.dims.receptive_field + 1
+    def __init__(self, backend: Backend, batch: int, chunk: int = 1):
+        if not isinstance(chunk, int) or isinstance(chunk, bool) or chunk < 1:
+            raise ValueError(f"chunk must be an int >= 1, got {chunk!r}")
+        self.backend, self.chunk = backend, chunk
+        self.window = backend.dims.receptive_field + chunk
         self.tokens = np.zeros((batch, self.window, backend.dims.num_levels), np.int64)
-        self.count = 0
+        self.count = 0    # tokens pushed
+        self.pending = 0  # tokens pushed whose frames were not returned yet
 
     def push(self, picked: np.ndarray) -> np.ndarray:
-        """picked (B, L) of the newest step -> features (B, downsample, D) of that step's frames."""
+        """picked (B, L) of the newest step -> features (B, n * downsample, D) of the frames now ready
+        (n = 0 while a chunk fills up)."""
         self.tokens[:, :-1] = self.tokens[:, 1:]
         # A prompt that just ended carries END; decode a valid code in its place (its frames are dropped).
         self.tokens[:, -1] = np.where(picked < self.backend.dims.codebook_size, picked, 0)
         self.count += 1
-        n = min(self.count, self.window)
+        self.pending += 1
+        if self.count > 1 and self.pending < self.chunk:
+            return self._empty()
+        return self.flush()
+
+    def flush(self) -> np.ndarray:
+        """The frames of every token pushed and not yet returned: call once the motion has ended."""
+        if not self.pending:
+            return self._empty()
+        n = min(self.count, self.backend.dims.receptive_field + self.pending)
         feats = self.backend.decode(self.tokens[:, self.window - n:])           # (B, n * ds, D)
-        return feats[:, -self.backend.dims.downsample:]
+        out = feats[:, -self.pending * self.backend.dims.downsample:]
+        self.pending = 0
+        return out
+
+    def _empty(self) -> np.ndarray:
+        return np.zeros((self.tokens.shape[0], 0, self.backend.dims.feature_dim), np.float32)

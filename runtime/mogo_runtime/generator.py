@@ -1,7 +1,7 @@
 """Text to motion on onnxruntime: `OrtBackend` runs a bundle's graphs, `MotionGenerator` is the user's API.
 
     from mogo_runtime import MotionGenerator
-    gen = MotionGenerator("bundles/base", variant="fp32", threads=2)
+    gen = MotionGenerator("bundles/base", variant="fp32", threads=1)
     motion = gen.generate("a person walks forward and then jumps", seconds=6, seed=1)
     motion.save("walk.bvh")
     for frame in gen.stream("a person waves", seed=2):       # frames as soon as they are decoded
@@ -25,23 +25,12 @@ from .bundle import GRAPHS, Bundle, BundleError
 from .decoding import FrameStreamer, ModelDims, collect_tokens, decode_tokens, generate_tokens, make_rngs
 from .features import recover_from_ric
 from .motion import Motion, RootIntegrator
+from .sessions import session_options
 from .sampling import SamplingConfig
 from .tca import AlignedPrompt, Aligner, OfflineAligner, apply_alignment
 from .text import TextEncoderSession, check_texts
 
 _PAST, _PRESENT = "past_key_values.", "present."
-
-
-def session_options(threads: int):
-    """Options for sitting inside a host application: few threads, one graph at a time."""
-    import onnxruntime as ort
-
-    opts = ort.SessionOptions()
-    opts.intra_op_num_threads = threads
-    opts.inter_op_num_threads = 1
-    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    return opts
 
 
 class OrtBackend:
@@ -54,7 +43,7 @@ class OrtBackend:
     OrtValues through `run_with_ort_values` measured 20-50% slower per step here, in its Python overhead.)
     """
 
-    def __init__(self, bundle: Bundle, variant: str = "fp32", threads: int = 2):
+    def __init__(self, bundle: Bundle, variant: str = "fp32", threads: int = 1):
         import onnxruntime as ort
 
         if variant not in bundle.variants:
@@ -172,7 +161,7 @@ class MotionGenerator:
     `aligner`: the text condition alignment `align=True` uses (tca.py); default the bundle's OfflineAligner.
     """
 
-    def __init__(self, bundle: Bundle | str | Path, variant: str = "fp32", threads: int = 2,
+    def __init__(self, bundle: Bundle | str | Path, variant: str = "fp32", threads: int = 1,
                  aligner: Aligner | None = None):
         # Only the chosen variant's files are hashed and checked: an int8 run never reads the fp32 text encoder.
         self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle, variants=[variant])
@@ -243,9 +232,11 @@ class MotionGenerator:
 
     def stream(self, text: str, seconds: float | None = None, seed: int = 0, temperature: float | None = None,
                top_k: int | None = None, top_p: float | None = None,
-               guidance: float | None = None, align: bool | Aligner = False) -> FrameStream:
-        """Yield the frames of one prompt's motion as each token is sampled and decoded.
+               guidance: float | None = None, align: bool | Aligner = False, chunk: int = 4) -> FrameStream:
+        """Yield the frames of one prompt's motion as its tokens are sampled and decoded.
 
+        The first token's frames come at once; after that frames come `chunk` tokens at a time (chunk=1: every
+        token, at ~1.6x the decoding work; see decoding.FrameStreamer).
         The causal decoder makes them equal to `generate(text, ..., seed=seed)`'s frames (to float rounding).
         Arguments are checked, and the prompt aligned (`align`, as in generate), when this is called, before
         the first frame is asked for; the returned stream's `aligned_text` says what the model follows.
@@ -256,21 +247,28 @@ class MotionGenerator:
         fixed = self.tokens_for(seconds)
         sampling = self.sampling_config(temperature, top_k, top_p, guidance)
         seeds = _check_seeds(seed, 1)
+        streamer = FrameStreamer(self.backend, 1, chunk)
         emb, aligned = self._condition([text], align)
-        return FrameStream(self._stream(emb, fixed, sampling, seeds), text, aligned[0])
+        return FrameStream(self._stream(emb, fixed, sampling, seeds, streamer), text, aligned[0])
 
-    def _stream(self, emb, fixed, sampling, seeds) -> Iterator[Frame]:
-        streamer = FrameStreamer(self.backend, 1)
+    def _stream(self, emb, fixed, sampling, seeds, streamer: FrameStreamer) -> Iterator[Frame]:
         integrator = RootIntegrator(self.skeleton.num_joints)
         index = 0
         for picked, alive in generate_tokens(self.backend, emb, sampling, make_rngs(seeds, 1), self.max_tokens,
                                              fixed):
             if not alive[0]:
-                return
-            features = streamer.push(picked)[0]                                 # (downsample, D)
-            for f, j in zip(features, integrator.push(features)):
+                break
+            for f, j in self._frames(streamer.push(picked)[0], integrator):
                 yield Frame(index=index, time=index / self.dims.fps, features=f, joints=j)
                 index += 1
+        for f, j in self._frames(streamer.flush()[0], integrator):
+            yield Frame(index=index, time=index / self.dims.fps, features=f, joints=j)
+            index += 1
+
+    @staticmethod
+    def _frames(features: np.ndarray, integrator: RootIntegrator):
+        """(n, D) features -> pairs (features, joints) of n frames; nothing for n = 0."""
+        return zip(features, integrator.push(features)) if len(features) else ()
 
     def tokens_for(self, seconds: float | None) -> int | None:
         """Seconds -> a fixed number of tokens (half up), or None; ValueError outside the bundle's range."""

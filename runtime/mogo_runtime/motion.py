@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ from typing import BinaryIO, Callable
 import numpy as np
 
 from .features import FeatureLayout
+from .files import write_atomic
 from .skeleton import Skeleton
 
 SAVE_FORMATS = (".npy", ".json", ".bvh", ".gif", ".mp4")
@@ -107,17 +107,10 @@ def check_output_path(path: str | Path) -> str:
 
 
 def _write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
-    """Write through a fresh temporary name beside `path`, then rename it into place."""
-    # Not mkstemp: its 0600 mode would stick to the final file; open(..., "xb") gets the usual umask.
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     try:
-        with open(tmp, "xb") as f:
-            write(f)
-        os.replace(tmp, path)
+        write_atomic(path, write)
     except OSError as e:
         raise OutputError(f"{path}: cannot write it ({e.strerror or e})") from None
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 class RootIntegrator:

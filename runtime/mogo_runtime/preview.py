@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import os
-import secrets
 import shutil
 import subprocess
 import tempfile
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from .files import temp_path, write_atomic
 from .skeleton import HUMANML3D, Skeleton
 
 # Palette indices and colours.
@@ -98,7 +98,7 @@ def render_mp4(path, joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, 
                            "install ffmpeg or use render_gif")
     frames = render_frames(joints, skeleton, fps, title, size, camera)
     path = Path(path)
-    tmp = _temp_path(path)
+    tmp = temp_path(path)
     W, H = size
     cmd = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{W}x{H}",
            "-r", f"{fps:g}", "-i", "-", "-an", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2",  # yuv420p needs even sizes
@@ -303,24 +303,9 @@ def _new_image(size) -> Image.Image:
 # ----------------------------------------------------------------------------------------------------
 # files and checks
 
-def _temp_path(path: Path) -> Path:
-    """A fresh name beside `path` to write before os.replace. Not created here, so whoever creates it
-    gets the usual umask permissions (mkstemp would leave the final file 0600)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp{path.suffix}")
-
-
 def _save_gif(path: Path, frames: list[Image.Image], fps: float) -> Path:
-    tmp = _temp_path(path)
-    try:
-        with open(tmp, "xb") as f:
-            frames[0].save(f, format="GIF", save_all=True, append_images=frames[1:],
-                           duration=round(1000.0 / fps), loop=0)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return write_atomic(path, lambda f: frames[0].save(f, format="GIF", save_all=True, append_images=frames[1:],
+                                                        duration=round(1000.0 / fps), loop=0))
 
 
 def _check(joints, skeleton: Skeleton, fps, size, what: str = "joints") -> np.ndarray:

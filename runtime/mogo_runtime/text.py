@@ -6,7 +6,7 @@ The tokenizer settings live here, once: the torch side (`mogo_export.models.text
 reads them back from that file. So training, export and runtime cut and pad prompts the same way.
 
     from mogo_runtime.text import TextEncoderSession
-    enc = TextEncoderSession("bundle/text_encoder.onnx", "bundle/tokenizer.json", threads=2)
+    enc = TextEncoderSession("bundle/text_encoder.onnx", "bundle/tokenizer.json", threads=1)
     emb = enc.encode(["a person walks forward"])    # (1, 384) float32, L2-normalised
 """
 from __future__ import annotations
@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 from tokenizers import Tokenizer
+
+from .sessions import session_options
 
 
 @dataclass(frozen=True)
@@ -84,10 +86,7 @@ class TextEncoderSession:
         self.tokenizer = Tokenizer.from_file(str(tokenizer_path))
         self.settings = TokenizerSettings.from_tokenizer(self.tokenizer, source=str(tokenizer_path))
 
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads
-        opts.inter_op_num_threads = 1
-        self.session = ort.InferenceSession(str(onnx_path), opts, providers=providers or ["CPUExecutionProvider"])
+        self.session = ort.InferenceSession(str(onnx_path), session_options(threads), providers=providers or ["CPUExecutionProvider"])
 
         names = {i.name for i in self.session.get_inputs()}
         if names != {"input_ids", "attention_mask"}:

@@ -216,14 +216,14 @@ def test_cli_evaluates_the_tiny_bundle_and_writes_every_field(tiny_checkpoints, 
     out = tmp_path / "eval.json"
     assert main(["evaluate", "--data", str(data), "--checkpoints", str(tiny_checkpoints), "--bundle",
                  str(tiny_bundle), "--evaluator", str(small_evaluator), "--repeats", "2", "--split", "val",
-                 "--length", "gt", "--mm-captions", "2", "--mm-generations", "3", "--threads", "1",
+                 "--length", "gt", "--mm-captions", "2", "--mm-generations", "3", "--threads", "1", "--tca",
                  "--json", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "Top 1" in printed and "MultiModality" in printed and "MOGO bundle int8" in printed
     report = json.loads(out.read_text())
     rows = report["table2"]
     assert list(rows) == ["Real motion", "VQ reconstruction", "MOGO (torch)", "MOGO bundle fp32",
-                          "MOGO bundle int8"]
+                          "MOGO bundle fp32 + TCA", "MOGO bundle int8", "MOGO bundle int8 + TCA"]
     for name, row in rows.items():
         assert set(row) == set(E.METRICS)
         for metric, cell in row.items():

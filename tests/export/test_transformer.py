@@ -75,6 +75,25 @@ def test_chunked_prefill_equals_full_forward():
             torch.testing.assert_close(torch.cat(outs, dim=1), full, atol=1e-5, rtol=0)
 
 
+def test_the_bundle_cache_layout_gives_the_same_logits_and_folded_presents():
+    """Caches folded as [batch, L*H, P, hd] (the bundle's layout) are the model's rows, regrouped."""
+    m = _model()
+    cfg = m.cfg
+    B, S, L, H, hd = 2, 11, cfg.num_levels, cfg.n_heads, cfg.d_model // cfg.n_heads
+    text, tok = torch.randn(B, cfg.text_dim), _tokens(cfg, B, S)
+    with torch.no_grad():
+        past, folded = m.empty_past(B), [(k.reshape(B, L * H, 0, hd), v.reshape(B, L * H, 0, hd))
+                                         for k, v in m.empty_past(B)]
+        for j in range(S):
+            want, past = m.step(text, tok[:, j:j + 1], past)
+            got, folded = m.step(text, tok[:, j:j + 1], folded)
+            torch.testing.assert_close(got, want, atol=0, rtol=0)
+    for (k, v), (fk, fv) in zip(past, folded):
+        assert fk.shape == fv.shape == (B, L * H, S, hd)
+        torch.testing.assert_close(fk, k.reshape(B, L * H, S, hd), atol=0, rtol=0)
+        torch.testing.assert_close(fv, v.reshape(B, L * H, S, hd), atol=0, rtol=0)
+
+
 def test_time_causality_and_level_streams():
     """Stream l reads levels 0..l: a level-l token changes no stream below l and no earlier step."""
     m = _model(num_levels=3)

@@ -117,6 +117,30 @@ def test_streamed_frames_equal_offline_decode():
         assert np.allclose(np.concatenate(frames[b]), offline[b], atol=1e-6)
 
 
+@pytest.mark.parametrize("chunk", [1, 2, 4, 5])
+def test_chunked_streaming_returns_every_frame_once_and_exactly(chunk):
+    backend = ToyBackend(end_at=[9])
+    emb = np.random.default_rng(4).normal(size=(1, DIMS.text_dim)).astype(np.float32)
+    streamer = FrameStreamer(backend, 1, chunk)
+    pieces, ready_after = [], []
+    for picked, alive in generate_tokens(backend, emb, SamplingConfig(temperature=1.0), make_rngs(5, 1), 12):
+        if not alive[0]:
+            break
+        pieces.append(streamer.push(picked)[0])
+        ready_after.append(len(pieces[-1]) // DIMS.downsample)
+    pieces.append(streamer.flush()[0])
+    assert len(streamer.flush()[0]) == 0  # nothing is returned twice
+    offline = decode_tokens(backend, run(ToyBackend(end_at=[9]), emb, SamplingConfig(temperature=1.0), 5))[0]
+    np.testing.assert_allclose(np.concatenate(pieces), offline, atol=1e-6)
+    assert ready_after[0] == 1  # the first token's frames come at once
+    assert all(n in (0, chunk) for n in ready_after[1:])
+
+
+def test_bad_chunk_is_refused():
+    with pytest.raises(ValueError, match="chunk"):
+        FrameStreamer(ToyBackend(), 1, 0)
+
+
 def test_bad_sampling_options_are_refused():
     for kw in ({"temperature": -1}, {"top_k": 0}, {"top_p": 0.0}, {"top_p": 1.5}, {"guidance": -2}):
         with pytest.raises(ValueError):

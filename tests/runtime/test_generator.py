@@ -86,12 +86,12 @@ def test_explicit_seed_list(gen):
     assert [m.seed for m in batch] == [5, 0, 42]
 
 
-@pytest.mark.parametrize("fixed", [False, True])
-def test_stream_equals_generate(gen, fixed):
+@pytest.mark.parametrize("fixed,chunk", [(False, 4), (True, 4), (False, 1), (True, 3)])
+def test_stream_equals_generate(gen, fixed, chunk):
     seconds = seconds_of(gen, 7) if fixed else None
     for seed in (0, 1):
         offline = gen.generate(PROMPTS[3], seconds=seconds, seed=seed)
-        frames = list(gen.stream(PROMPTS[3], seconds=seconds, seed=seed))
+        frames = list(gen.stream(PROMPTS[3], seconds=seconds, seed=seed, chunk=chunk))
         assert all(isinstance(f, Frame) for f in frames)
         assert [f.index for f in frames] == list(range(offline.num_frames))
         assert [f.time for f in frames] == pytest.approx([i / gen.dims.fps for i in range(offline.num_frames)])
