@@ -55,7 +55,7 @@ def main(argv=None) -> int:
     from mogo_runtime import MotionGenerator
 
     print(f"[4/4] generating {len(PROMPTS)} motions with the runtime (onnxruntime, no torch in the loop)")
-    gen = MotionGenerator(bundle, variant="fp32", threads=2)
+    gen = MotionGenerator(bundle, variant="fp32", threads=1)
     args.out.mkdir(parents=True, exist_ok=True)
     for i, text in enumerate(PROMPTS):
         t = time.perf_counter()
