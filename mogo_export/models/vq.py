@@ -31,7 +31,6 @@ class VQConfig:
     dead_code_threshold: float = 0.1    # a code whose EMA count < this x the level's mean count is reset
     vel_loss: float = 0.0               # weight of an L1 loss on frame-to-frame differences (0 = off)
     mse_loss: float = 0.0               # weight of a squared-error term added to the L1 reconstruction
-    root_weight: float = 1.0            # loss weight of the 4 root features (rotation/linear velocity, height)
 
     def __post_init__(self):
         assert self.downsample in (1, 2, 4), "downsample must be 1, 2 or 4"
@@ -335,8 +334,6 @@ class MoSAVQ(nn.Module):
         err = recon - x
         rec = err.abs().mean()
         loss = rec + cfg.beta * q.commit + cfg.gamma * q.reg
-        if cfg.root_weight != 1.0:  # the root is 4 of D features yet carries the whole trajectory
-            loss = loss + (cfg.root_weight - 1.0) * err[..., :4].abs().mean() * 4 / x.shape[-1]
         if cfg.mse_loss > 0:
             # L1 alone is a median fit: a pose held by few clips (one raised arm) is many std away and
             # cheap to ignore; the squared term makes large errors pull hard
