@@ -6,8 +6,11 @@
    beyond the relative-distance clip (fp32 bar 1e-4);
 2. end to end: the torch generator and the onnxruntime loop on the same prompts and seeds, greedy: identical
    token sequences and decoded joints within 0.1 mm;
-3. int8 vs fp32: token agreement, logit error (int8 step teacher-forced on the fp32 tokens), decoded-joint
-   error, text-embedding cosine.
+3. int8 vs fp32: token agreement, logit error, decoded-joint error, text-embedding cosine. Agreement is gated
+   teacher-forced: both variants step through the fp32 greedy sequence, each with its own text encoder and
+   cache, and we count the (step, level) pairs where their argmaxes agree: that is what int8 changes per step.
+   Free-running greedy agreement (each variant follows its own tokens) is printed too, not gated: after the
+   first differing token the two runs are different motions, so it measures chaos as much as quantization.
 """
 from __future__ import annotations
 
@@ -34,7 +37,7 @@ PROMPTS = ("a person walks forward", "a person waves with the right hand", "some
 class Thresholds:
     fp32_abs: float = 1e-4           # graph outputs, max abs error
     joints_mm: float = 0.1           # end to end fp32, max joint error
-    int8_token_agreement: float = 0.9  # fraction of (step, level) tokens equal, position by position
+    int8_token_agreement: float = 0.95  # teacher-forced: fraction of (step, level) argmaxes equal, same history
     int8_text_cosine: float = 0.98   # int8 vs fp32 text embedding
 
 
@@ -113,6 +116,27 @@ def _agreement(a: np.ndarray, b: np.ndarray) -> float:
     return float(same) / max(1, max(len(a), len(b)) * a.shape[1])
 
 
+def _teacher_forced(fp32: OrtBackend, int8: OrtBackend, prompts: list[str], sequences) -> tuple[float, float]:
+    """Step both variants, one step at a time as the runtime does, through each fp32 greedy sequence (and its
+    END step); -> (fraction of (step, level) argmaxes equal, max abs logit difference)."""
+    same = total = 0
+    worst = 0.0
+    bos = fp32.dims.bos_id
+    for text, seq in zip(prompts, sequences):
+        feed = np.concatenate([np.full((1, seq.shape[1]), bos), seq]).astype(np.int64)  # (T + 1, L)
+        runs = []
+        for backend in (fp32, int8):
+            emb, past, logits = backend.encode_text([text]), backend.empty_past(1), []
+            for t in range(len(feed)):
+                out, past = backend.step(emb, feed[None, t:t + 1], past)
+                logits.append(out[0, 0])
+            runs.append(np.stack(logits))  # (T + 1, L, K + 1)
+        same += int((runs[0].argmax(-1) == runs[1].argmax(-1)).sum())
+        total += runs[0].shape[0] * runs[0].shape[1]
+        worst = max(worst, float(np.abs(runs[0] - runs[1]).max()))
+    return same / max(1, total), worst
+
+
 def check_end_to_end(gen: TorchGenerator, fp32: OrtBackend, int8: OrtBackend | None, report: Report,
                      th: Thresholds, prompts=PROMPTS) -> None:
     prompts = list(prompts)
@@ -130,16 +154,13 @@ def check_end_to_end(gen: TorchGenerator, fp32: OrtBackend, int8: OrtBackend | N
     if int8 is None:
         return
     q_tokens = _ort_tokens(int8, prompts, seeds, gen.max_tokens)
-    agree = float(np.mean([_agreement(a, b) for a, b in zip(ort_tokens, q_tokens)]))
-    report.add("int8 vs fp32 token agreement", agree, f">= {th.int8_token_agreement:g}",
-               agree >= th.int8_token_agreement, fmt="{:.3f}")
-    # logit error with the fp32 tokens fed to both (teacher forcing), so one divergence does not compound
-    emb = fp32.encode_text(prompts[:1])
-    seq = ort_tokens[0]
-    tokens = np.concatenate([np.full((1, 1, seq.shape[1]), fp32.dims.bos_id), seq[None]], axis=1)
-    lf, _ = fp32.step(emb, tokens, fp32.empty_past(1))
-    lq, _ = int8.step(emb, tokens, int8.empty_past(1))
-    report.add("int8 vs fp32 step logits, max abs (teacher-forced)", float(np.abs(lf - lq).max()), "report", True)
+    forced, logit_err = _teacher_forced(fp32, int8, prompts, ort_tokens)
+    report.add("int8 vs fp32 argmax agreement, teacher-forced (step, level)", forced,
+               f">= {th.int8_token_agreement:g}", forced >= th.int8_token_agreement, fmt="{:.3f}")
+    free = float(np.mean([_agreement(a, b) for a, b in zip(ort_tokens, q_tokens)]))
+    report.add("int8 vs fp32 greedy tokens, free-running, position by position", free, "report", True,
+               fmt="{:.3f}")
+    report.add("int8 vs fp32 step logits, max abs (teacher-forced)", logit_err, "report", True)
     qj = [recover_from_ric(f, J) for f in decode_tokens(int8, q_tokens)]
     errs = [np.linalg.norm(a[:min(len(a), len(b))] - b[:min(len(a), len(b))], axis=-1).mean() * 1000
             for a, b in zip(oj, qj)]

@@ -79,6 +79,33 @@ def test_verifier_passes_on_the_tiny_bundle(tiny_bundle, tiny_checkpoints):
     assert any("past=13" in n for n in names)  # beyond the tiny model's clip distance (8)
 
 
+def test_teacher_forced_agreement_counts_argmax_changes(tiny_bundle):
+    from mogo_runtime.bundle import Bundle
+    from mogo_runtime.generator import OrtBackend
+    from mogo_export.verify import PROMPTS, _ort_tokens, _teacher_forced
+
+    fp32 = OrtBackend(Bundle.load(tiny_bundle), "fp32", threads=1)
+    prompts = list(PROMPTS[:3])
+    seqs = _ort_tokens(fp32, prompts, [0, 1, 2], 12)
+    assert _teacher_forced(fp32, fp32, prompts, seqs) == (1.0, 0.0)
+
+    class Flipped:  # the same backend with level 0's logits negated: its argmax almost never agrees
+        dims = fp32.dims
+
+        def __getattr__(self, name):
+            return getattr(fp32, name)
+
+        def step(self, emb, tokens, past):
+            logits, past = fp32.step(emb, tokens, past)
+            logits = logits.copy()
+            logits[..., 0, :] *= -1
+            return logits, past
+
+    agree, err = _teacher_forced(fp32, Flipped(), prompts, seqs)
+    L = fp32.dims.num_levels
+    assert (L - 1) / L - 0.05 <= agree < 1.0 - 0.5 / L and err > 0
+
+
 def test_transformer_trained_on_tokens_predicts_better_than_chance(tiny_checkpoints):
     payload = read_checkpoint(tiny_checkpoints / "transformer.pt", "transformer")
     K = payload["config"]["codebook_size"]
