@@ -325,9 +325,9 @@ def case_cold(args) -> dict:
     t2 = time.perf_counter()
     from mogo_runtime import Bundle, MotionGenerator
 
-    bundle = Bundle.load(args.bundle)
+    bundle = Bundle.load(args.bundle, variants=[args.variant], check_graphs=False)  # as MotionGenerator(path)
     t3 = time.perf_counter()
-    gen = MotionGenerator(bundle, variant=args.variant, threads=args.threads)
+    gen = MotionGenerator(bundle, variant=args.variant, threads=args.threads)        # sessions, checked
     t4 = time.perf_counter()
     T = motion_tokens(bundle.manifest)
     next(iter(gen.stream(PROMPT, seconds=T * gen.dims.downsample / gen.dims.fps, seed=0)))

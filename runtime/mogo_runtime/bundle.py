@@ -148,25 +148,31 @@ class Bundle:
                 if fpath in seen:
                     continue
                 seen.add(fpath)
-                spec = _require(_require(self.manifest, "graphs", "manifest", dict), graph, "manifest graphs", dict)
                 try:
                     sess = ort.InferenceSession(str(fpath), opts, providers=["CPUExecutionProvider"])
                 except Exception as e:
                     raise BundleError(f"{fpath}: onnxruntime cannot load it ({e})") from None
-                for kind, actual in (("inputs", sess.get_inputs()), ("outputs", sess.get_outputs())):
-                    declared = _require(spec, kind, f"manifest graphs[{graph!r}]", list)
-                    got = {a.name: a for a in actual}
-                    if sorted(got) != sorted(d["name"] for d in declared):
-                        raise BundleError(f"{fpath}: {kind} are {sorted(got)}, manifest graphs[{graph!r}].{kind} "
-                                          f"lists {sorted(d['name'] for d in declared)}")
-                    for d in declared:
-                        a = got[d["name"]]
-                        if a.type != _ONNX_TYPES.get(d["dtype"], d["dtype"]):
-                            raise BundleError(f"{fpath}: {kind[:-1]} {d['name']!r} has type {a.type}, manifest "
-                                              f"says {d['dtype']}")
-                        if len(a.shape) != len(d["shape"]):
-                            raise BundleError(f"{fpath}: {kind[:-1]} {d['name']!r} has rank {len(a.shape)}, "
-                                              f"manifest shape is {d['shape']}")
+                self.check_session(graph, fpath, sess)
+
+    def check_session(self, graph: str, fpath: Path, sess) -> None:
+        """An onnxruntime session of `graph` declares the inputs/outputs (names, element types, ranks) that
+        the manifest lists. A runtime that opens its sessions anyway checks them here, rather than opening
+        every graph twice (check_graph_signatures does, for callers that run nothing)."""
+        spec = _require(_require(self.manifest, "graphs", "manifest", dict), graph, "manifest graphs", dict)
+        for kind, actual in (("inputs", sess.get_inputs()), ("outputs", sess.get_outputs())):
+            declared = _require(spec, kind, f"manifest graphs[{graph!r}]", list)
+            got = {a.name: a for a in actual}
+            if sorted(got) != sorted(d["name"] for d in declared):
+                raise BundleError(f"{fpath}: {kind} are {sorted(got)}, manifest graphs[{graph!r}].{kind} "
+                                  f"lists {sorted(d['name'] for d in declared)}")
+            for d in declared:
+                a = got[d["name"]]
+                if a.type != _ONNX_TYPES.get(d["dtype"], d["dtype"]):
+                    raise BundleError(f"{fpath}: {kind[:-1]} {d['name']!r} has type {a.type}, manifest "
+                                      f"says {d['dtype']}")
+                if len(a.shape) != len(d["shape"]):
+                    raise BundleError(f"{fpath}: {kind[:-1]} {d['name']!r} has rank {len(a.shape)}, "
+                                      f"manifest shape is {d['shape']}")
 
     def graph_spec(self, graph: str) -> dict:
         return self.manifest["graphs"][graph]

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
 
 import numpy as np
 
@@ -27,8 +27,10 @@ from .features import recover_from_ric
 from .motion import Motion, RootIntegrator
 from .sessions import session_options
 from .sampling import SamplingConfig
-from .tca import AlignedPrompt, Aligner, OfflineAligner, apply_alignment
 from .text import TextEncoderSession, check_texts
+
+if TYPE_CHECKING:  # tca is imported when alignment is first used: its patterns cost ~50 ms of every cold start
+    from .tca import AlignedPrompt, Aligner
 
 _PAST, _PRESENT = "past_key_values.", "present."
 
@@ -66,6 +68,10 @@ class OrtBackend:
         self.step_session = ort.InferenceSession(str(bundle.graph_file("step", variant)), opts, providers=cpu)
         self.lookup_session = ort.InferenceSession(str(bundle.graph_file("lookup", variant)), opts, providers=cpu)
         self.decoder_session = ort.InferenceSession(str(bundle.graph_file("decoder", variant)), opts, providers=cpu)
+        # the sessions we run are the ones checked against the manifest (Bundle.load may skip its own check)
+        for graph, sess in (("text_encoder", self.text.session), ("step", self.step_session),
+                            ("lookup", self.lookup_session), ("decoder", self.decoder_session)):
+            bundle.check_session(graph, bundle.graph_file(graph, variant), sess)
 
         # Cache names from the manifest: every present.X output feeds the past_key_values.X input.
         spec = bundle.graph_spec("step")
@@ -164,7 +170,9 @@ class MotionGenerator:
     def __init__(self, bundle: Bundle | str | Path, variant: str = "fp32", threads: int = 1,
                  aligner: Aligner | None = None):
         # Only the chosen variant's files are hashed and checked: an int8 run never reads the fp32 text encoder.
-        self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle, variants=[variant])
+        # The backend checks the sessions it opens against the manifest, so loading skips its own graph check.
+        self.bundle = (bundle if isinstance(bundle, Bundle) else
+                       Bundle.load(bundle, variants=[variant], check_graphs=False))
         self.backend = OrtBackend(self.bundle, variant, threads)
         self.dims = self.bundle.dims
         self.skeleton = self.bundle.skeleton
@@ -176,6 +184,8 @@ class MotionGenerator:
     def aligner(self) -> Aligner:
         """The aligner of `align=True`: the one given, else the bundle's offline one (built on first use)."""
         if self._aligner is None:
+            from .tca import OfflineAligner
+
             self._aligner = OfflineAligner(self.bundle, self.backend)
         return self._aligner
 
@@ -183,6 +193,8 @@ class MotionGenerator:
         """The aligned prompts for `texts` (None when `align` is False): `align` is True or an Aligner."""
         if align is False or align is None:
             return None
+        from .tca import Aligner
+
         aligner = self.aligner if align is True else align
         if not isinstance(aligner, Aligner):
             raise ValueError(f"align must be True, False or a mogo_runtime.tca.Aligner, got {align!r}")
@@ -192,6 +204,8 @@ class MotionGenerator:
         prompts = self.align(texts, align)
         if prompts is None:
             return self.backend.encode_text(texts), [None] * len(texts)
+        from .tca import apply_alignment
+
         return apply_alignment(prompts, self.backend.encode_text), [p.text for p in prompts]
 
     @property

@@ -121,6 +121,21 @@ def test_bundle_load_refuses_corruption_and_missing_files(tiny, tmp_path):
         Bundle.load(tmp_path)
 
 
+def test_a_manifest_that_misdescribes_a_graph_is_refused_by_load_and_by_the_generator(tiny, tmp_path):
+    from mogo_runtime.generator import MotionGenerator
+
+    copy = tmp_path / "b"
+    shutil.copytree(tiny["bundle"], copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    manifest["graphs"]["decoder"]["outputs"][0]["name"] = "joints"  # the graph's output is called otherwise
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(BundleError, match=r"decoder.onnx: outputs are .*manifest graphs\['decoder'\]"):
+        Bundle.load(copy)
+    for variant in ("fp32", "int8"):  # loads with check_graphs=False: its own sessions are what get checked
+        with pytest.raises(BundleError, match=r"decoder.onnx: outputs are"):
+            MotionGenerator(copy, variant=variant)
+
+
 def test_export_is_atomic_when_it_fails(tiny, tmp_path, monkeypatch):
     import mogo_export.export.bundle as B
 
