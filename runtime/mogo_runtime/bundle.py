@@ -11,7 +11,6 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-
 from .decoding import ModelDims
 from .features import FeatureLayout
 from .skeleton import Skeleton, get_skeleton

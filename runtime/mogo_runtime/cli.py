@@ -126,12 +126,10 @@ def _load_generator(args):
         raise
     # no argparse default for --variant: argparse would then miss "--int8 --variant fp32" as a conflict
     gen = MotionGenerator(bundle, variant=args.variant or "fp32", threads=args.threads)
-    if args.rewriter_url:
+    if args.rewriter_url:  # the offline aligner stays as the fallback; sessions are opened once
         from .tca import ChatRewriter
 
-        gen = MotionGenerator(bundle, variant=args.variant or "fp32", threads=args.threads,
-                              aligner=ChatRewriter(args.rewriter_url, args.rewriter_model or "default",
-                                                   fallback=gen.aligner))
+        gen.aligner = ChatRewriter(args.rewriter_url, args.rewriter_model or "default", fallback=gen.aligner)
     return gen
 
 

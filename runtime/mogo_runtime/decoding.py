@@ -140,6 +140,7 @@ class FrameStreamer:
         self.tokens = np.zeros((batch, self.window, backend.dims.num_levels), np.int64)
         self.count = 0    # tokens pushed
         self.pending = 0  # tokens pushed whose frames were not returned yet
+        self._none = np.zeros((batch, 0, backend.dims.feature_dim), np.float32)  # "no frames yet", made once
 
     def push(self, picked: np.ndarray) -> np.ndarray:
         """picked (B, L) of the newest step -> features (B, n * downsample, D) of the frames now ready
@@ -150,18 +151,15 @@ class FrameStreamer:
         self.count += 1
         self.pending += 1
         if self.count > 1 and self.pending < self.chunk:
-            return self._empty()
+            return self._none
         return self.flush()
 
     def flush(self) -> np.ndarray:
         """The frames of every token pushed and not yet returned: call once the motion has ended."""
         if not self.pending:
-            return self._empty()
+            return self._none
         n = min(self.count, self.backend.dims.receptive_field + self.pending)
         feats = self.backend.decode(self.tokens[:, self.window - n:])           # (B, n * ds, D)
         out = feats[:, -self.pending * self.backend.dims.downsample:]
         self.pending = 0
         return out
-
-    def _empty(self) -> np.ndarray:
-        return np.zeros((self.tokens.shape[0], 0, self.backend.dims.feature_dim), np.float32)

@@ -189,6 +189,10 @@ class MotionGenerator:
             self._aligner = OfflineAligner(self.bundle, self.backend)
         return self._aligner
 
+    @aligner.setter
+    def aligner(self, aligner: Aligner) -> None:
+        self._aligner = aligner
+
     def align(self, texts: list[str], align: bool | Aligner = True) -> list[AlignedPrompt] | None:
         """The aligned prompts for `texts` (None when `align` is False): `align` is True or an Aligner."""
         if align is False or align is None:
@@ -266,23 +270,22 @@ class MotionGenerator:
         return FrameStream(self._stream(emb, fixed, sampling, seeds, streamer), text, aligned[0])
 
     def _stream(self, emb, fixed, sampling, seeds, streamer: FrameStreamer) -> Iterator[Frame]:
+        def decoded() -> Iterator[np.ndarray]:  # (n, D) features as they become ready, n may be 0
+            for picked, alive in generate_tokens(self.backend, emb, sampling, make_rngs(seeds, 1), self.max_tokens,
+                                                 fixed):
+                if not alive[0]:
+                    break
+                yield streamer.push(picked)[0]
+            yield streamer.flush()[0]
+
         integrator = RootIntegrator(self.skeleton.num_joints)
         index = 0
-        for picked, alive in generate_tokens(self.backend, emb, sampling, make_rngs(seeds, 1), self.max_tokens,
-                                             fixed):
-            if not alive[0]:
-                break
-            for f, j in self._frames(streamer.push(picked)[0], integrator):
+        for features in decoded():
+            if not len(features):
+                continue
+            for f, j in zip(features, integrator.push(features)):
                 yield Frame(index=index, time=index / self.dims.fps, features=f, joints=j)
                 index += 1
-        for f, j in self._frames(streamer.flush()[0], integrator):
-            yield Frame(index=index, time=index / self.dims.fps, features=f, joints=j)
-            index += 1
-
-    @staticmethod
-    def _frames(features: np.ndarray, integrator: RootIntegrator):
-        """(n, D) features -> pairs (features, joints) of n frames; nothing for n = 0."""
-        return zip(features, integrator.push(features)) if len(features) else ()
 
     def tokens_for(self, seconds: float | None) -> int | None:
         """Seconds -> a fixed number of tokens (half up), or None; ValueError outside the bundle's range."""

@@ -86,7 +86,8 @@ class TextEncoderSession:
         self.tokenizer = Tokenizer.from_file(str(tokenizer_path))
         self.settings = TokenizerSettings.from_tokenizer(self.tokenizer, source=str(tokenizer_path))
 
-        self.session = ort.InferenceSession(str(onnx_path), session_options(threads), providers=providers or ["CPUExecutionProvider"])
+        self.session = ort.InferenceSession(str(onnx_path), session_options(threads),
+                                            providers=providers or ["CPUExecutionProvider"])
 
         names = {i.name for i in self.session.get_inputs()}
         if names != {"input_ids", "attention_mask"}:
