@@ -49,7 +49,7 @@ SCHEDULES = {
     "tiny": {"vq": Schedule(steps=60, batch_size=8, lr=1e-3, warmup=5, val_every=30, ckpt_every=30, window=16),
              "transformer": Schedule(steps=60, batch_size=8, lr=1e-3, warmup=5, val_every=30, ckpt_every=30)},
     "base": {"vq": Schedule(steps=2000, batch_size=32, lr=2e-3, window=64),
-             "transformer": Schedule(steps=700, batch_size=32, lr=1e-3, warmup=100, val_every=100, ckpt_every=100)},
+             "transformer": Schedule(steps=1300, batch_size=32, lr=5e-4, val_every=250, ckpt_every=250)},
     "paper": {"vq": Schedule(steps=100_000, batch_size=256, lr=2e-4, window=64, val_every=2000, ckpt_every=2000),
               "transformer": Schedule(steps=100_000, batch_size=256, lr=2e-4, val_every=2000, ckpt_every=2000)},
 }
