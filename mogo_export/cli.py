@@ -58,7 +58,8 @@ def _quality(args) -> int:
 
     from .quality import quality_report
 
-    report = quality_report(args.data, args.checkpoints, gif=args.gif)
+    report = quality_report(args.data, args.checkpoints, gif=args.gif, bundle=args.bundle, seeds=args.seeds,
+                            threads=args.threads)
     print(json.dumps(report, indent=2))
     return 0
 
@@ -151,6 +152,10 @@ def main(argv=None) -> int:
     p.add_argument("--data", type=Path, required=True)
     p.add_argument("--checkpoints", type=Path, required=True)
     p.add_argument("--gif", type=Path, default=None, help="also write one generated motion per family here")
+    p.add_argument("--bundle", type=Path, default=None,
+                   help="also judge every variant of this bundle (fp32, int8) through the runtime, same seeds")
+    p.add_argument("--seeds", type=int, default=1, help="sampling draws per caption, averaged (default 1)")
+    p.add_argument("--threads", type=int, default=2, help="onnxruntime threads of the bundle rows")
     p.set_defaults(run=_quality)
 
     p = sub.add_parser("ablation", help="MoSA-VQ with vs without learnable scaling (same budget and seed)")

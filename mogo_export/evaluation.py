@@ -228,36 +228,21 @@ def _by_length(generate, downsample: int, length: str, chunk: int):
 
 def torch_source(ckpt_dir: Path, sampling: SamplingConfig, length: str = "model", chunk: int = 32,
                  name: str = "MOGO (torch)") -> MotionSource:
-    from .generate import TorchGenerator
+    from .generate import TorchGenerator, torch_features
 
-    gen = TorchGenerator.from_checkpoints(ckpt_dir)
-
-    def generate(texts, seeds, tokens):
-        return [m.features for m in gen.generate(texts, seed=seeds, sampling=sampling, num_tokens=tokens)]
-
-    return MotionSource(name, _by_length(generate, gen.backend.dims.downsample, length, chunk), stochastic=True)
+    fg = torch_features(TorchGenerator.from_checkpoints(ckpt_dir), sampling)
+    return MotionSource(name, _by_length(fg.generate, fg.downsample, length, chunk), stochastic=True)
 
 
 def bundle_source(bundle: Path, variant: str, sampling: SamplingConfig | None = None, length: str = "model",
                   chunk: int = 32, threads: int = 2, align: bool = False, name: str | None = None) -> MotionSource:
-    """A bundle through mogo_runtime's MotionGenerator (the code a game runs); sampling None = the bundle's.
+    """A bundle variant through the runtime (generate.bundle_features); sampling None = the bundle's.
     `align`: condition on the TCA-aligned prompts (the paper's "w/ TCA" rows)."""
-    from mogo_runtime.generator import MotionGenerator
+    from .generate import bundle_features
 
-    gen = MotionGenerator(bundle, variant=variant, threads=threads)
-    s = sampling or gen.sampling_config()
-    per_token = gen.dims.downsample / gen.dims.fps
-    extra = {"align": True} if align else {}
-
-    def generate(texts, seeds, tokens):
-        # top_k=0 and top_p=1.0 mean "no cut" (None would mean the bundle's default)
-        motions = gen.generate(texts, seconds=None if tokens is None else tokens * per_token, seed=seeds,
-                               temperature=s.temperature, top_k=s.top_k or 0, top_p=s.top_p or 1.0,
-                               guidance=s.guidance, **extra)
-        return [m.features for m in motions]
-
+    fg = bundle_features(bundle, variant, sampling, threads, align)
     name = name or f"MOGO bundle {variant}" + (" + TCA" if align else "")
-    return MotionSource(name, _by_length(generate, gen.dims.downsample, length, chunk), stochastic=True)
+    return MotionSource(name, _by_length(fg.generate, fg.downsample, length, chunk), stochastic=True)
 
 
 def bundle_sampling(bundle: Path) -> SamplingConfig:

@@ -1,9 +1,11 @@
 """Quality on the procedural data: VQ reconstruction, action accuracy of generated motion, diversity, GIFs.
 
-    mogo-export quality --data data/procedural --checkpoints checkpoints/base [--gif outputs/families.gif]
+    mogo-export quality --data data/procedural --checkpoints checkpoints/base [--gif outputs/families.gif] \
+        [--bundle bundles/base] [--seeds 3]
 
 A motion classifier trained on the training split (labels ship with the dataset) judges whether a motion
-generated from a held-out caption shows the right action family.
+generated from a held-out caption shows the right action family. With --bundle, each of the bundle's variants
+(fp32, int8) generates from the same captions with the same seeds and sampling as torch, through the runtime.
 """
 from __future__ import annotations
 
@@ -15,12 +17,12 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mogo_runtime.features import recover_from_ric
+from mogo_runtime.files import write_atomic
 from mogo_runtime.sampling import SamplingConfig
 
 from .checkpoint import build_from_checkpoint, save_checkpoint
 from .data.dataset import MotionDataset
-from .generate import TorchGenerator
+from .generate import FeatureGenerator, TorchGenerator, bundle_features, torch_features
 from .models.classifier import ClassifierConfig, MotionClassifier
 from .models.vq import MoSAVQ, VQConfig
 from .train import evaluate_vq
@@ -94,34 +96,45 @@ def diversity(embeddings: np.ndarray, pairs: int = 300, seed: int = 0) -> float:
     return float(np.linalg.norm(embeddings[a[keep]] - embeddings[b[keep]], axis=-1).mean())
 
 
-def generation_quality(gen: TorchGenerator, data: Path, classifier_path: Path, splits=("test", "val"),
-                       sampling: SamplingConfig = SamplingConfig(temperature=1.0, top_p=0.95), seed: int = 0,
-                       batch: int = 16, progress: bool = True) -> dict:
-    """Generate from held-out captions, classify, report per-family and overall accuracy and diversity."""
+# Sampling of every quality measurement: the bundles' shipped defaults, so torch and bundle rows compare.
+QUALITY_SAMPLING = SamplingConfig(temperature=1.0, top_p=0.95)
+
+
+def held_out_cases(data: Path, families: list[str], splits=("test", "val")) -> list[tuple[str, str]]:
+    """(first caption, family) of every single-action clip of `splits`."""
+    return [(it.captions[0], single_family(it.label)) for split in splits
+            for it in MotionDataset.load(data, split).items if single_family(it.label) in families]
+
+
+def generation_quality(gen: FeatureGenerator, data: Path, classifier_path: Path, seeds: int = 1, batch: int = 16,
+                       progress: bool = True) -> dict:
+    """Generate from held-out captions, classify; per-family and overall accuracy and diversity, averaged over
+    `seeds` draws (draw s gives caption i the seed 1000 * s + i)."""
     model, families = load_classifier(classifier_path)
-    ds = MotionDataset.load(data, splits[0])
-    cases = []
-    for split in splits:
-        for it in MotionDataset.load(data, split).items:
-            fam = single_family(it.label)
-            if fam in families:
-                cases.append((it.captions[0], fam))
-    preds, embs = [], []
-    for i in tqdm(range(0, len(cases), batch), desc="generate+classify", disable=not progress):
-        chunk = cases[i:i + batch]
-        motions = gen.generate([c for c, _ in chunk], seed=[seed + i + j for j in range(len(chunk))],
-                               sampling=sampling)
-        p, e = classify(model, families, [ds.normalize(m.features) if len(m.features) else
-                                          np.zeros((4, ds.mean.shape[0]), np.float32) for m in motions])
-        preds += p
-        embs.append(e)
-    truth = [f for _, f in cases]
-    per_family = {f: float(np.mean([p == t for p, t in zip(preds, truth) if t == f])) for f in sorted(set(truth))}
-    gt_clips = [ds.normalize(it.features) for it in ds.items]
-    _, gt_emb = classify(model, families, gt_clips)
-    return {"overall_accuracy": float(np.mean([p == t for p, t in zip(preds, truth)])),
-            "per_family": per_family, "cases": len(cases),
-            "diversity": diversity(np.concatenate(embs)), "diversity_real": diversity(gt_emb)}
+    ds = MotionDataset.load(data, "test")
+    cases = held_out_cases(data, families)
+    truth = np.array([f for _, f in cases])
+    hits, div = [], []
+    bar = tqdm(total=seeds * len(cases), desc="generate+classify", unit="motion", disable=not progress)
+    for s in range(seeds):
+        preds, embs = [], []
+        for i in range(0, len(cases), batch):
+            chunk = cases[i:i + batch]
+            feats = gen.generate([c for c, _ in chunk], [1000 * s + i + j for j in range(len(chunk))], None)
+            p, e = classify(model, families, [ds.normalize(f) if len(f) else
+                                              np.zeros((4, ds.mean.shape[0]), np.float32) for f in feats])
+            preds += p
+            embs.append(e)
+            bar.update(len(chunk))
+        hits.append(np.array(preds) == truth)
+        div.append(diversity(np.concatenate(embs)))
+    bar.close()
+    hits = np.stack(hits)                                   # (seeds, cases)
+    _, gt_emb = classify(model, families, [ds.normalize(it.features) for it in ds.items])
+    return {"overall_accuracy": float(hits.mean()), "accuracy_per_seed": hits.mean(1).tolist(),
+            "per_family": {f: float(hits[:, truth == f].mean()) for f in sorted(set(truth))},
+            "cases": len(cases), "seeds": seeds,
+            "diversity": float(np.mean(div)), "diversity_real": diversity(gt_emb)}
 
 
 def classifier_accuracy_on_real(data: Path, classifier_path: Path, split: str = "test") -> float:
@@ -143,18 +156,33 @@ def family_gif(gen: TorchGenerator, families: list[str], captions: dict[str, str
     from mogo_runtime.preview import render_grid_gif
 
     texts = [captions[f] for f in families]
-    motions = gen.generate(texts, seed=seed, sampling=SamplingConfig(temperature=1.0, top_p=0.95))
+    motions = gen.generate(texts, seed=seed, sampling=QUALITY_SAMPLING)
     return render_grid_gif(path, [(f"{f}: {t}", m.joints) for f, t, m in zip(families, texts, motions)],
                            fps=gen.backend.dims.fps)
 
 
-def quality_report(data: Path, ckpt_dir: Path, gif: Path | None = None, progress: bool = True) -> dict:
+def quality_report(data: Path, ckpt_dir: Path, gif: Path | None = None, bundle: Path | None = None,
+                   seeds: int = 1, threads: int = 2, progress: bool = True) -> dict:
+    """The whole report; written to <ckpt_dir>/quality.json too. `bundle`: also judge each of its variants."""
+    if seeds < 1:
+        raise ValueError(f"seeds must be 1 or more, got {seeds}")
+    variants = []
+    if bundle is not None:  # checked before any work: a bad bundle fails now, not after the torch rows
+        from mogo_runtime.bundle import Bundle
+
+        variants = list(Bundle.load(bundle).variants)
     t0 = time.perf_counter()
     clf = train_classifier(data, ckpt_dir, progress=progress)
     gen = TorchGenerator.from_checkpoints(ckpt_dir)
     report = {"vq_test": vq_reconstruction(data, ckpt_dir / "vq.pt"),
               "classifier_accuracy_real_test": classifier_accuracy_on_real(data, clf),
-              "generation": generation_quality(gen, data, clf, progress=progress)}
+              "generation": generation_quality(torch_features(gen, QUALITY_SAMPLING), data, clf, seeds,
+                                               progress=progress)}
+    if bundle is not None:
+        report["bundle"] = {"path": str(bundle)}
+        for variant in variants:
+            report["bundle"][variant] = generation_quality(
+                bundle_features(bundle, variant, QUALITY_SAMPLING, threads), data, clf, seeds, progress=progress)
     if gif is not None:
         ds = MotionDataset.load(data, "test")
         captions = {}
@@ -164,5 +192,5 @@ def quality_report(data: Path, ckpt_dir: Path, gif: Path | None = None, progress
                 captions[fam] = it.captions[0]
         report["gif"] = str(family_gif(gen, sorted(captions), captions, gif))
     report["seconds"] = time.perf_counter() - t0
-    (ckpt_dir / "quality.json").write_text(json.dumps(report, indent=2))
+    write_atomic(ckpt_dir / "quality.json", lambda f: f.write(json.dumps(report, indent=2).encode()))
     return report
