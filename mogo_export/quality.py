@@ -96,10 +96,6 @@ def diversity(embeddings: np.ndarray, pairs: int = 300, seed: int = 0) -> float:
     return float(np.linalg.norm(embeddings[a[keep]] - embeddings[b[keep]], axis=-1).mean())
 
 
-# Sampling of every quality measurement: the bundles' shipped defaults, so torch and bundle rows compare.
-QUALITY_SAMPLING = SamplingConfig(temperature=1.0, top_p=0.95)
-
-
 def held_out_cases(data: Path, families: list[str], splits=("test", "val")) -> list[tuple[str, str]]:
     """(first caption, family) of every single-action clip of `splits`."""
     return [(it.captions[0], single_family(it.label)) for split in splits
@@ -152,11 +148,12 @@ def vq_reconstruction(data: Path, vq_path: Path, split: str = "test") -> dict:
     return evaluate_vq(vq, [ds.normalize(it.features) for it in ds.items], ds.mean, ds.std)
 
 
-def family_gif(gen: TorchGenerator, families: list[str], captions: dict[str, str], path: Path, seed: int = 0) -> Path:
+def family_gif(gen: TorchGenerator, families: list[str], captions: dict[str, str], path: Path,
+               sampling: SamplingConfig, seed: int = 0) -> Path:
     from mogo_runtime.preview import render_grid_gif
 
     texts = [captions[f] for f in families]
-    motions = gen.generate(texts, seed=seed, sampling=QUALITY_SAMPLING)
+    motions = gen.generate(texts, seed=seed, sampling=sampling)
     return render_grid_gif(path, [(f"{f}: {t}", m.joints) for f, t, m in zip(families, texts, motions)],
                            fps=gen.backend.dims.fps)
 
@@ -171,18 +168,20 @@ def quality_report(data: Path, ckpt_dir: Path, gif: Path | None = None, bundle: 
         from mogo_runtime.bundle import Bundle
 
         variants = list(Bundle.load(bundle).variants)
+    from .export.bundle import SAMPLING_DEFAULTS as sampling  # what bundles ship, so every row samples alike
+
     t0 = time.perf_counter()
     clf = train_classifier(data, ckpt_dir, progress=progress)
     gen = TorchGenerator.from_checkpoints(ckpt_dir)
-    report = {"vq_test": vq_reconstruction(data, ckpt_dir / "vq.pt"),
+    report = {"sampling": sampling.to_dict(), "vq_test": vq_reconstruction(data, ckpt_dir / "vq.pt"),
               "classifier_accuracy_real_test": classifier_accuracy_on_real(data, clf),
-              "generation": generation_quality(torch_features(gen, QUALITY_SAMPLING), data, clf, seeds,
+              "generation": generation_quality(torch_features(gen, sampling), data, clf, seeds,
                                                progress=progress)}
     if bundle is not None:
         report["bundle"] = {"path": str(bundle)}
         for variant in variants:
             report["bundle"][variant] = generation_quality(
-                bundle_features(bundle, variant, QUALITY_SAMPLING, threads), data, clf, seeds, progress=progress)
+                bundle_features(bundle, variant, sampling, threads), data, clf, seeds, progress=progress)
     if gif is not None:
         ds = MotionDataset.load(data, "test")
         captions = {}
@@ -190,7 +189,7 @@ def quality_report(data: Path, ckpt_dir: Path, gif: Path | None = None, bundle: 
             fam = single_family(it.label)
             if fam and fam not in captions:
                 captions[fam] = it.captions[0]
-        report["gif"] = str(family_gif(gen, sorted(captions), captions, gif))
+        report["gif"] = str(family_gif(gen, sorted(captions), captions, gif, sampling))
     report["seconds"] = time.perf_counter() - t0
     write_atomic(ckpt_dir / "quality.json", lambda f: f.write(json.dumps(report, indent=2).encode()))
     return report

@@ -96,6 +96,8 @@ def test_cli_judges_torch_and_every_bundle_variant_with_the_same_seeds(tiny_chec
     # same captions, seeds and sampling through torch and the fp32 bundle: the same motions, the same verdicts
     assert fp32_row["accuracy_per_seed"] == torch_row["accuracy_per_seed"]
     assert fp32_row["per_family"] == torch_row["per_family"]
+    # every row samples as the bundle would for its users, and the report says how
+    assert report["sampling"] == json.loads((tiny_bundle / "manifest.json").read_text())["sampling_defaults"]
     assert gif.stat().st_size > 0 and report["gif"] == str(gif)
     assert report["vq_test"]["mpjpe_mm"] > 0
 
