@@ -5,13 +5,15 @@ import re
 import numpy as np
 import pytest
 
-from mogo_export.data import actions as A
 from mogo_export.data import procedural as P
 from mogo_export.data.dataset import read_captions
+from mogo_export.data.procedural import captions, clips as C, families, locomotion, writer
+from mogo_export.data.procedural.action import FULL_BUDGET, TimeBudget
+from mogo_export.data.procedural.pose import FPS, MAX_SECONDS
 from mogo_runtime.features import FeatureLayout, recover_from_ric
 from mogo_runtime.skeleton import HUMANML3D
 
-FAMILIES = list(A.FAMILIES)
+FAMILIES = list(families.FAMILIES)
 FEET = [7, 10, 8, 11]  # left ankle, left toe, right ankle, right toe (HumanML3D's contact joints)
 PARENTS = np.array(HUMANML3D.parents)
 BONES = np.arange(1, HUMANML3D.num_joints)
@@ -29,12 +31,12 @@ def clips():
     out = []
     for f in FAMILIES:
         for s in range(3):
-            joints, _ = P.generate_clip((f,), np.random.default_rng([11, s, FAMILIES.index(f)]))
+            joints, _ = C.generate_clip((f,), np.random.default_rng([11, s, FAMILIES.index(f)]))
             out.append((f, joints))
     for i, pair in enumerate([("walk_forward", "jump_in_place"), ("run", "sit_down"), ("kick_left", "turn_right"),
                               ("jump_forward", "walk_backward"), ("squat", "wave_left_hand"), ("bow", "clap")]):
-        joints, _ = P.generate_clip(pair, np.random.default_rng([12, i]))
-        out.append((P.label_for(pair), joints))
+        joints, _ = C.generate_clip(pair, np.random.default_rng([12, i]))
+        out.append((C.label_for(pair), joints))
     return out
 
 
@@ -155,8 +157,8 @@ def test_no_flips_and_smooth(clips, humanml3d_fixture):
         b = j[:, BONES] - j[:, PARENTS[BONES]]
         b /= np.linalg.norm(b, axis=-1, keepdims=True)
         ang = np.degrees(np.arccos(np.clip((b[1:] * b[:-1]).sum(-1), -1, 1)))  # bone turn per frame
-        v = (j[1:] - j[:-1]) * P.FPS
-        acc = np.linalg.norm(v[1:] - v[:-1], axis=-1) * P.FPS  # m/s^2
+        v = (j[1:] - j[:-1]) * FPS
+        acc = np.linalg.norm(v[1:] - v[:-1], axis=-1) * FPS  # m/s^2
         return ang, acc
     real_ang, real_acc = rates(np.load(humanml3d_fixture / "new_joints" / "012314.npy"))
     # Real clip 012314: bone turn max 66 deg/frame; acceleration max 129 m/s^2, pelvis p95 12, max 19.
@@ -197,7 +199,8 @@ def test_captions(built):
         tags = {"DET", "NOUN", "VERB", "ADV", "ADJ", "ADP", "PRON", "NUM", "CCONJ", "AUX", "INTJ"}
         for c in caps:
             assert len(c.tokens) == len(re.findall(r"[a-z]+", c.text))  # one word/POS per word
-            assert " ".join(c.tokens) == P.pos_tokens(c.text) and {t.split("/")[1] for t in c.tokens} <= tags
+            assert " ".join(c.tokens) == captions.pos_tokens(c.text)
+            assert {t.split("/")[1] for t in c.tokens} <= tags
             assert c.start == c.end == 0.0
             assert c.text.endswith(".") and c.text == c.text.lower()
         for side in ("left", "right"):  # sided actions name their side in every caption
@@ -208,44 +211,66 @@ def test_captions(built):
 def test_captions_follow_parameters():
     for s in range(40):
         for fam in FAMILIES:
-            act = A.FAMILIES[fam](np.random.default_rng(s))
+            act = families.FAMILIES[fam](np.random.default_rng(s))
             text = " ".join(act.phrases)
             assert len(act.phrases) >= 4, fam
             for ph in act.phrases:
-                P.pos_tokens(ph.replace("{pos}", "his"))  # every word is in the lexicon
+                captions.pos_tokens(ph.replace("{pos}", "his"))  # every word is in the lexicon
             pr = act.params
             if pr.get("speed") == "slow":
                 assert re.search(r"slow|jog|carefully", text), (fam, text)
             if pr.get("speed") == "fast":
                 assert re.search(r"quick|fast|sprint", text), (fam, text)
             if "reps" in pr and pr["reps"] > 1:
-                assert A.COUNT_WORDS[pr["reps"]] in text or A.NUMBER_WORDS[pr["reps"]] in text, (fam, text)
+                words = (captions.COUNT_WORDS[pr["reps"]], captions.NUMBER_WORDS[pr["reps"]])
+                assert any(w in text for w in words), (fam, text)
             if "steps" in pr and fam.startswith("walk_") and fam != "walk_circle":
-                assert A.NUMBER_WORDS[pr["steps"]] in text, (fam, text)
+                assert captions.NUMBER_WORDS[pr["steps"]] in text, (fam, text)
             if pr.get("side") in ("left", "right"):
                 assert pr["side"] in text, (fam, text)
 
 
+def test_time_budget_is_an_explicit_value():
+    # A family's clip depends on (rng, budget) only: a shorter budget fits fewer steps or repetitions (never
+    # a longer clip), and nothing carries over from one call to the next.
+    assert TimeBudget.at_most(25.0) == FULL_BUDGET and FULL_BUDGET.seconds == MAX_SECONDS
+    short = TimeBudget.at_most(5.0)
+    shortened = 0
+    for fam, family in families.FAMILIES.items():
+        for s in range(5):
+            full = family(np.random.default_rng(s))
+            cut = family(np.random.default_rng(s), short)
+            again = family(np.random.default_rng(s), FULL_BUDGET)
+            np.testing.assert_array_equal(again.pose.angles, full.pose.angles)
+            assert again.phrases == full.phrases and again.params == full.params, fam
+            assert cut.pose.T <= full.pose.T, fam
+            # 5 s hold one repetition of every family but these, which have a minimum number of steps
+            if not re.fullmatch(r"walk_circle|turn_(left|right)", fam):
+                assert cut.pose.T <= round(short.seconds * FPS), (fam, cut.pose.T)
+            shortened += cut.pose.T < full.pose.T
+    assert shortened >= 40  # of 105
+
+
 def test_pos_tokens_and_caption_line():
-    assert P.pos_tokens("a person walks forward slowly.") == "a/DET person/NOUN walk/VERB forward/ADV slowly/ADV"
-    assert P.pos_tokens("someone does two deep squats") == "someone/PRON do/VERB two/NUM deep/ADJ squat/NOUN"
-    assert P.pos_tokens("the man squats down") == "the/DET man/NOUN squat/VERB down/ADV"
-    line = P.caption_line("a man kicks with his left leg.")
+    assert captions.pos_tokens("a person walks forward slowly.") == "a/DET person/NOUN walk/VERB forward/ADV slowly/ADV"
+    assert captions.pos_tokens("someone does two deep squats") == "someone/PRON do/VERB two/NUM deep/ADJ squat/NOUN"
+    assert captions.pos_tokens("the man squats down") == "the/DET man/NOUN squat/VERB down/ADV"
+    line = captions.caption_line("a man kicks with his left leg.")
     assert line == "a man kicks with his left leg.#a/DET man/NOUN kick/VERB with/ADP his/DET left/ADJ leg/NOUN#0.0#0.0"
     with pytest.raises(ValueError, match="'moonwalks'"):
-        P.pos_tokens("a person moonwalks")
+        captions.pos_tokens("a person moonwalks")
 
 
 def test_sequence_blends_and_keeps_heading():
     rng = np.random.default_rng(5)
-    first = A.walk_forward(rng)
-    second = A.jump_in_place(rng)
-    pose = P.blend(first.pose, second.pose)
-    assert pose.T == first.pose.T + second.pose.T - P.BLEND_FRAMES
+    first = locomotion.walk_forward(rng)
+    second = locomotion.jump_in_place(rng)
+    pose = C.blend(first.pose, second.pose)
+    assert pose.T == first.pose.T + second.pose.T - C.BLEND_FRAMES
     # the second action starts facing where the first ended
     assert pose.angles[first.pose.T, 0, 1] == pytest.approx(first.pose.angles[-1, 0, 1], abs=1e-9)
-    np.testing.assert_array_equal(pose.flight[first.pose.T:], second.pose.flight[P.BLEND_FRAMES:])
-    joints, caps = P.generate_clip(("walk_forward", "jump_in_place"), np.random.default_rng(5))
+    np.testing.assert_array_equal(pose.flight[first.pose.T:], second.pose.flight[C.BLEND_FRAMES:])
+    joints, caps = C.generate_clip(("walk_forward", "jump_in_place"), np.random.default_rng(5))
     assert len(joints) <= 200 and len(caps) >= 3
     assert all(re.search(r"walk|step", c) and re.search(r"jump|hop", c) for c in caps)
 
@@ -263,14 +288,14 @@ def test_build_refuses_to_clobber_and_cli(tmp_path, capsys):
 
 
 def test_a_failed_build_leaves_nothing(tmp_path, monkeypatch):
-    real = P.generate_clip
+    real = C.generate_clip
 
     def flaky(families, rng):
-        if families == P.family_plan(8, 0)[5]:
+        if families == C.family_plan(8, 0)[5]:
             raise RuntimeError("boom")
         return real(families, rng)
 
-    monkeypatch.setattr(P, "generate_clip", flaky)
+    monkeypatch.setattr(writer, "generate_clip", flaky)  # the name the writer calls
     with pytest.raises(RuntimeError, match="boom"):
         P.build_dataset(tmp_path / "d", num_clips=8, seed=0, progress=False, workers=1)
     assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,115 @@
+"""Every word of the procedural captions: the phrasing helpers the families build their verb phrases with,
+the subjects and sequence templates that turn phrases into captions, and the part-of-speech lexicon that
+writes HumanML3D's `word/POS` token field.
+
+Kept together because they must agree: every word a family or template can produce has to be in the
+lexicon, and the build fails loudly on one that is not (tests check every family's phrasing against it).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+SPEED_WORDS = {"slow": "slowly", "normal": "", "fast": "quickly"}
+COUNT_WORDS = {1: "once", 2: "twice", 3: "three times", 4: "four times", 5: "five times", 6: "six times",
+               7: "seven times", 8: "eight times", 9: "nine times", 10: "ten times"}
+NUMBER_WORDS = {1: "one", 2: "two", 3: "three", 4: "four", 5: "five", 6: "six", 7: "seven", 8: "eight",
+                9: "nine", 10: "ten", 11: "eleven", 12: "twelve", 13: "thirteen", 14: "fourteen", 15: "fifteen",
+                16: "sixteen", 17: "seventeen", 18: "eighteen", 19: "nineteen", 20: "twenty"}
+
+
+def adverb(speed: str) -> str:
+    """" slowly" / " quickly" (with the leading space) for a speed, "" for a normal pace."""
+    return (" " + SPEED_WORDS[speed]) if SPEED_WORDS[speed] else ""
+
+
+def how_often(n: int) -> str:
+    return COUNT_WORDS[n]
+
+
+SUBJECTS = (("a person", "their"), ("a man", "his"), ("a woman", "her"), ("someone", "their"),
+            ("the person", "their"), ("a human", "their"), ("the man", "his"), ("this person", "their"))
+SEQUENCE_TEMPLATES = ("{s} {a} and then {b}", "{s} {a}, then {b}", "{s} first {a} and then {b}",
+                      "{s} {a} and after that {b}", "{s} {a}, and afterwards {b}")
+
+
+def sample_captions(phrase_sets: list[list[str]], rng: np.random.Generator) -> list[str]:
+    """3 or 4 differently worded captions: distinct phrasings, each with a sampled subject."""
+    n = int(rng.integers(3, 5))
+    picks = [rng.permutation(len(p)) for p in phrase_sets]
+    out: list[str] = []
+    for i in range(n):
+        subject, pos = SUBJECTS[int(rng.integers(len(SUBJECTS)))]
+        parts = [p[int(k[i % len(k)])].replace("{pos}", pos) for p, k in zip(phrase_sets, picks)]
+        if len(parts) == 1:
+            text = f"{subject} {parts[0]}"
+        else:
+            tpl = SEQUENCE_TEMPLATES[int(rng.integers(len(SEQUENCE_TEMPLATES)))]
+            text = tpl.format(s=subject, a=parts[0], b=parts[1])
+        out.append(text + ".")
+    return list(dict.fromkeys(out))  # same subject and phrasing twice: keep one
+
+
+# A small POS lexicon covering every word the captions use, tagged like HumanML3D's texts (spaCy's
+# universal tags, only NOUN and VERB lemmatised, punctuation dropped). The build fails loudly on a word
+# missing here rather than guessing.
+_WORDS = {
+    "DET": "a the this both all his her their",
+    "PRON": "someone it nothing them that",
+    "AUX": "is",
+    "CCONJ": "and",
+    "ADP": "above at in into of on over to with without after before",
+    "INTJ": "hello",
+    "NUM": "one two three four five six seven eight nine ten eleven twelve thirteen fourteen fifteen "
+           "sixteen seventeen eighteen nineteen twenty sixty eighty ninety hundred",
+    "ADJ": "left right slow quick normal deep full half high low middle long short small seated upper other "
+           "idle little quarter",
+    "ADV": "ahead afterwards backward backwards back calmly carefully clockwise counterclockwise deeply down "
+           "far fast forward quickly slightly slowly still then together up once twice around much out "
+           "sideways straight first",
+}
+_NOUNS = {"person": "person", "man": "man", "woman": "woman", "human": "human", "arm": "arm", "arms": "arm",
+          "hand": "hand", "hands": "hand", "fist": "fist", "fists": "fist", "foot": "foot", "leg": "leg",
+          "knees": "knee", "head": "head", "body": "body", "chair": "chair", "chest": "chest",
+          "circle": "circle", "distance": "distance", "height": "height", "line": "line", "pace": "pace",
+          "place": "place", "position": "position", "seat": "seat", "shoulder": "shoulder", "side": "side",
+          "sides": "side", "times": "time", "way": "way", "waist": "waist", "degrees": "degree",
+          "front": "front"}
+_VERBS = {"applauds": "applaud", "bends": "bend", "boxes": "box", "brings": "bring", "claps": "clap",
+          "does": "do", "faces": "face", "held": "hold", "holds": "hold", "hops": "hop", "jabs": "jab",
+          "jogging": "jog", "jogs": "jog", "leaps": "leap", "lifts": "lift", "looks": "look", "lowers": "lower",
+          "makes": "make", "moves": "move", "moving": "move", "puts": "put", "raises": "raise", "rises": "rise",
+          "runs": "run", "running": "run", "shuffles": "shuffle", "sidesteps": "sidestep", "sits": "sit",
+          "spins": "spin", "sprints": "sprint", "stands": "stand", "standing": "stand", "stays": "stay",
+          "swings": "swing", "takes": "take", "throws": "throw", "turning": "turn", "walks": "walk",
+          "waves": "wave", "alternating": "alternate", "using": "use"}
+# NOUN after a determiner, number or adjective ("does two squats"), VERB otherwise ("squats down")
+_NOUN_OR_VERB = {"jump": "jump", "jumps": "jump", "kick": "kick", "kicks": "kick", "punch": "punch",
+                 "punches": "punch", "squat": "squat", "squats": "squat", "step": "step", "steps": "step",
+                 "bow": "bow", "bows": "bow", "turn": "turn", "turns": "turn"}
+LEXICON = {w: (w, pos) for pos, words in _WORDS.items() for w in words.split()}
+LEXICON.update({w: (lemma, "NOUN") for w, lemma in _NOUNS.items()})
+LEXICON.update({w: (lemma, "VERB") for w, lemma in _VERBS.items()})
+
+
+def pos_tokens(caption: str) -> str:
+    """HumanML3D's token field: 'a person walks forward.' -> 'a/DET person/NOUN walk/VERB forward/ADV'."""
+    out, prev = [], None
+    for word in caption.lower().replace("-", "").split():
+        word = "".join(ch for ch in word if ch.isalpha())
+        if not word:
+            continue
+        if word in _NOUN_OR_VERB:
+            pos = "NOUN" if prev in ("DET", "NUM", "ADJ") else "VERB"
+            lemma = _NOUN_OR_VERB[word]
+        elif word in LEXICON:
+            lemma, pos = LEXICON[word]
+        else:
+            raise ValueError(f"caption word {word!r} is not in the procedural POS lexicon: {caption!r}")
+        out.append(f"{lemma}/{pos}")
+        prev = pos
+    return " ".join(out)
+
+
+def caption_line(caption: str) -> str:
+    """One line of a HumanML3D texts/ file: caption#tokens#start#end (0.0#0.0: the whole clip)."""
+    return f"{caption}#{pos_tokens(caption)}#0.0#0.0"

@@ -1,0 +1,152 @@
+"""Putting a posed body on the floor: `solve_ground` places the root so heels and toes that land on the
+floor stay where they landed (and the lowest one is on y=0, or the body follows a ballistic arc in the
+air), and `lock_feet` takes up with leg IK what the pose leaves over. `pose_to_joints` runs the whole
+chain from a Pose's angles to world joint positions.
+
+Separate from kinematics.py because this is where the clip's timeline matters (pins held across frames,
+flight phases); forward kinematics is per frame.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mogo_runtime.skeleton import HUMANML3D
+
+from .curves import ease
+from .kinematics import contact_points, forward_kinematics, two_bone_ik
+from .pose import FPS, GRAVITY, Pose
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of each run of True in a 1-D bool array."""
+    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    d = np.diff(m)
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+TOUCH = 0.02    # m: a pinned heel or toe stays pinned until it rises above this
+LAND = 0.01     # m: a heel or toe this low on a supporting foot gets pinned where it is
+GRAZE = 0.004   # m: ... and so does any heel or toe this low, support or not (a landing foot)
+
+
+def _root_heights(points: np.ndarray, flight: np.ndarray) -> np.ndarray:
+    """Root y: the lowest contact point on the floor; in the air a ballistic arc from take-off to landing."""
+    T = len(points)
+    ground = -points[..., 1].min(axis=1)
+    y = ground.copy()
+    for a, b in _runs(flight):
+        a, b = max(a, 1), min(b, T - 1)  # keep a grounded frame on each side
+        if b <= a:
+            continue
+        dur = (b - a + 1) / FPS
+        s = np.arange(1, b - a + 1) / FPS
+        base = np.interp(np.arange(a, b), [a - 1, b], [ground[a - 1], ground[b]])
+        y[a:b] = np.maximum(base + 0.5 * GRAVITY * s * (dur - s), ground[a:b])
+    return y
+
+
+def solve_ground(points: np.ndarray, support: np.ndarray, flight: np.ndarray, air_speed: np.ndarray,
+                 yaw_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Root translation (T, 3), per-foot floor corrections (T, 2, 3) and whether each foot is pinned
+    (T, 2), for contact points (T, 4, 3) given relative to the root (heel, toe of left then right foot).
+
+    Every heel or toe that comes down on the floor (on a foot the action marks as support, or grazing
+    it) is pinned where it lands, and stays pinned until it rises above TOUCH. Each frame the root is
+    placed where the pinned points, given the pose, best keep their pins (least squares; newly pinned
+    and lifting points, and those of feet the action no longer marks as support, weigh less, so
+    hand-overs between feet do not jerk the body). Whatever a foot still misses its pins by is its
+    correction, which `lock_feet` applies with leg IK and blends away once the foot lifts. With nothing
+    pinned the root keeps its velocity; in the air (`flight`) it follows a ballistic arc and moves at
+    `air_speed` m/s along the heading where that is set.
+    """
+    T = len(points)
+    root = np.zeros((T, 3))
+    root[:, 1] = _root_heights(points, flight)
+    xz = points[..., [0, 2]].tolist()                       # (T, 4, 2) as lists: the loop is per frame
+    height = (points[..., 1] + root[:, 1:2]).tolist()
+    sup = support.tolist()
+    air = flight.tolist()
+    yaw = np.radians(yaw_deg)
+    air_vel = (np.stack([np.sin(yaw), np.cos(yaw)], -1) * (air_speed / FPS)[:, None]).tolist()
+    pin = [None] * 4                                        # [x, z, frames pinned] per point
+    corr = np.zeros((T, 2, 3))
+    pinned = np.zeros((T, 2), dtype=bool)
+    rx = rz = vx = vz = 0.0
+    for t in range(T):
+        h = height[t]
+        for p in range(4):
+            if pin[p] is not None and (h[p] > TOUCH or air[t]):
+                pin[p] = None
+        # root from the points pinned so far; weights grow over a pin's first frames and shrink as it lifts
+        sw = sx = sz = 0.0
+        for p in range(4):
+            if pin[p] is not None:
+                w = min(1.0, (pin[p][2] + 1) / 4.0) * max(0.05, 1.0 - h[p] / TOUCH)
+                if not sup[t][p // 2]:  # a foot the action is lifting is held down, not leant on
+                    w *= 0.02
+                sw += w
+                sx += w * (pin[p][0] - xz[t][p][0])
+                sz += w * (pin[p][1] - xz[t][p][1])
+        if air[t] and air_vel[t] != [0.0, 0.0]:
+            vx, vz = air_vel[t]
+            nx, nz = rx + vx, rz + vz
+        elif sw > 0:
+            nx, nz = sx / sw, sz / sw
+        else:  # nothing on the floor: keep going as before (e.g. the feet of a running stride)
+            nx, nz = rx + vx, rz + vz
+        if t > 0:
+            vx, vz = nx - rx, nz - rz
+        rx, rz = nx, nz
+        root[t, 0], root[t, 2] = rx, rz
+        # pin what just came down, where it is now
+        for p in range(4):
+            if pin[p] is None and not air[t] and (h[p] < GRAZE or (sup[t][p // 2] and h[p] < LAND)):
+                pin[p] = [rx + xz[t][p][0], rz + xz[t][p][1], 0]
+            elif pin[p] is not None:
+                pin[p][2] += 1
+        for f in range(2):  # a foot's correction: the mean miss of its pinned points
+            missed = [(pin[p][0] - rx - xz[t][p][0], pin[p][1] - rz - xz[t][p][1])
+                      for p in (2 * f, 2 * f + 1) if pin[p] is not None]
+            if missed:
+                pinned[t, f] = True
+                corr[t, f, 0] = sum(m[0] for m in missed) / len(missed)
+                corr[t, f, 2] = sum(m[1] for m in missed) / len(missed)
+    return root, corr, pinned
+
+
+def lock_feet(joints: np.ndarray, corr: np.ndarray, pinned: np.ndarray, skeleton=HUMANML3D,
+              blend_s: float = 0.4) -> np.ndarray:
+    """Move each foot by its floor correction (T, 2, 3) while pinned (T, 2), re-solving the leg with
+    two-bone IK (hip fixed, foot translated, so bone lengths are unchanged). The correction a foot lifts
+    off with is blended away over the swing (at most `blend_s` seconds), so it rejoins its kinematic
+    path smoothly."""
+    out = joints.copy()
+    T = len(joints)
+    for f, (ankle, toe) in enumerate((skeleton.foot_left, skeleton.foot_right)):
+        c = np.where(pinned[:, f, None], corr[:, f], 0.0)
+        runs = _runs(pinned[:, f])
+        for i, (a, b) in enumerate(runs):
+            end = min(runs[i + 1][0] if i + 1 < len(runs) else T, b + int(blend_s * FPS))
+            if end > b:
+                w = ease((np.arange(b, end) - b + 1) / (end - b + 1))[:, None]
+                c[b:end] = c[b - 1] * (1 - w)
+        fix = np.flatnonzero(np.abs(c).sum(-1) > 1e-7)
+        if len(fix) == 0:
+            continue
+        knee = skeleton.parents[ankle]
+        hip = skeleton.parents[knee]
+        new_knee, new_ankle = two_bone_ik(joints[fix, hip], joints[fix, knee], joints[fix, ankle] + c[fix],
+                                          float(skeleton.bone_lengths[knee]), float(skeleton.bone_lengths[ankle]),
+                                          forward=joints[fix, toe] - joints[fix, ankle])
+        out[fix, knee] = new_knee
+        out[fix, toe] = joints[fix, toe] + (new_ankle - joints[fix, ankle])
+        out[fix, ankle] = new_ankle
+    return out
+
+
+def pose_to_joints(pose: Pose) -> np.ndarray:
+    """(T, 22, 3) world joint positions (metres, y up) for a Pose."""
+    rel, glob = forward_kinematics(pose.angles)
+    root, corr, pinned = solve_ground(contact_points(rel, glob), pose.support, pose.flight, pose.air_speed,
+                                      pose.angles[:, 0, 1])
+    return lock_feet(rel + root[:, None, :], corr, pinned)
