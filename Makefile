@@ -6,7 +6,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.mogo-installed
 
-.PHONY: setup demo test test-export test-runtime bench clean
+.PHONY: setup demo test test-export test-eval test-runtime bench clean
 
 setup: $(STAMP)
 
@@ -21,10 +21,14 @@ demo: $(STAMP)
 	$(PY) -m mogo_export.demo
 
 # The runtime's tests run in their own process with torch and mogo_export made unimportable.
-test: $(STAMP) test-export test-runtime
+test: $(STAMP) test-export test-eval test-runtime
 
 test-export: $(STAMP)
 	$(PY) -m pytest -q tests/export
+
+# Evaluation (mogo_eval: judges, metrics) apart from the product it judges.
+test-eval: $(STAMP)
+	$(PY) -m pytest -q tests/eval
 
 test-runtime: $(STAMP)
 	MOGO_BLOCK_TORCH=1 $(PY) -m pytest -q tests/runtime

@@ -20,8 +20,12 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+from mogo_runtime.bundle import Bundle
+from mogo_runtime.manifest import Manifest
+
+from .cases import MOTION_FRAMES, motion_tokens
+
 ROOT = Path(__file__).resolve().parent.parent
-MOTION_FRAMES = 196
 
 GOALS = [  # key, measure, goal text, threshold, direction
     ("rtf_int8_t1", "real-time factor, int8, 1 thread", "≥ 30×", 30.0, ">="),
@@ -139,15 +143,15 @@ def merge(results: list[dict]) -> list[dict]:
 # ----------------------------------------------------------------------------------------------------------------
 # the physical floor of one step
 
-def step_work(bundle: Path, manifest: dict) -> dict:
+def step_work(bundle: Path, manifest: Manifest) -> dict:
     """Matmul weights per graph row kind, from step.onnx (exact), or an estimate from the manifest."""
-    m = manifest["model"]
-    C, R1, K = int(m["d_model"]), int(m["max_rel_dist"]) + 1, int(m["codebook_size"])
+    m = manifest.model
+    C, R1, K = m.n_heads * m.head_dim, m.max_rel_dist + 1, m.codebook_size
     work = {"per_stream": 0, "per_prompt": 0, "per_head_row": 0, "source": "step.onnx"}
     try:
         import onnx
 
-        g = onnx.load(str(bundle / manifest["variants"]["fp32"]["step"]["file"])).graph
+        g = onnx.load(str(bundle / manifest.graph_file("step", "fp32").file)).graph
         shapes = {i.name: tuple(i.dims) for i in g.initializer}
         for n in g.node:
             if n.op_type == "Constant":
@@ -168,16 +172,16 @@ def step_work(bundle: Path, manifest: dict) -> dict:
             else:
                 work["per_stream"] += k * nn
     except Exception as e:                                                      # noqa: BLE001
-        L = int(m["n_layers"])
-        work = {"per_stream": L * 12 * C * C + C * (K + 1), "per_prompt": int(m["text_dim"]) * C,
+        L = m.n_layers
+        work = {"per_stream": L * 12 * C * C + C * (K + 1), "per_prompt": m.text_dim * C,
                 "per_head_row": L * C * R1, "source": f"estimate ({type(e).__name__}: {e})"}
     return work
 
 
-def step_floor(manifest: dict, work: dict, weight_bytes: int, rows: int, past: int, bandwidth: float,
+def step_floor(manifest: Manifest, work: dict, weight_bytes: int, rows: int, past: int, bandwidth: float,
                flops_per_s: float) -> dict:
-    m = manifest["model"]
-    L, H, hd, NL = int(m["num_levels"]), int(m["n_heads"]), int(m["head_dim"]), int(m["n_layers"])
+    m = manifest.model
+    L, H, hd, NL = m.num_levels, m.n_heads, m.head_dim, m.n_layers
     streams = rows * L
     flops = 2 * (work["per_stream"] * streams + work["per_prompt"] * rows + work["per_head_row"] * streams * H)
     flops += NL * 2 * 2 * streams * H * hd * (past + 1)                       # q.k and att.v
@@ -195,15 +199,15 @@ def _med(s: dict | None) -> float | None:
     return None if not s or not s.get("n") else s["median"]
 
 
-def summarize(results: list[dict], manifest: dict, bundle: Path, opts) -> dict:
+def summarize(results: list[dict], manifest: Manifest, bundle: Path, opts) -> dict:
     ok = merge(results) + [r for r in results if "error" not in r and r["case"] == "cold"]
     floors = {r["threads"]: r for r in ok if r["case"] == "floor"}
-    files = manifest["files"]
+    files = manifest.files                                                      # name -> (bytes, sha256)
     variant_bytes = {}
-    for v, graphs in manifest["variants"].items():
-        names = {g["file"] for g in graphs.values()} | {n for n in files if not n.endswith(".onnx")}
-        variant_bytes[v] = {"total": sum(files[n]["bytes"] for n in names),
-                            **{g: files[spec["file"]]["bytes"] for g, spec in graphs.items()}}
+    for v, graphs in manifest.variants.items():
+        names = {g.file for g in graphs.values()} | {n for n in files if not n.endswith(".onnx")}
+        variant_bytes[v] = {"total": sum(files[n][0] for n in names),
+                            **{g: files[spec.file][0] for g, spec in graphs.items()}}
     work = step_work(bundle, manifest)
 
     steps = []
@@ -242,7 +246,7 @@ def summarize(results: list[dict], manifest: dict, bundle: Path, opts) -> dict:
                 return s
         return None
 
-    T = max(1, min(int(manifest["model"]["max_tokens"]), round(MOTION_FRAMES / int(manifest["model"]["downsample"]))))
+    T = motion_tokens(manifest.model)
     mid = T // 2
     values: dict[str, tuple[float | None, str]] = {}
     q, f = find_e2e("onnxruntime", "int8", 1), find_e2e("onnxruntime", "fp32", 1)
@@ -441,13 +445,13 @@ def main(argv=None) -> int:
         print(f"benchmarks: no bundle at {opts.bundle} (build one with `make demo`, or pass --bundle)",
               file=sys.stderr)
         return 2
-    manifest = json.loads((opts.bundle / "manifest.json").read_text())
-    opts.variants = opts.variants or list(manifest["variants"])
+    manifest = Bundle.load(opts.bundle, verify_hashes=False, check_graphs=False).manifest
+    opts.variants = opts.variants or list(manifest.variants)
     notes = []
     if opts.torch and not ((opts.checkpoints / "vq.pt").is_file() and (opts.checkpoints / "transformer.pt").is_file()):
         notes.append(f"torch cases skipped: no checkpoints at {opts.checkpoints}")
         opts.torch = False
-    notes.append(f"downsample {manifest['model']['downsample']} only: pass another --bundle for another preset")
+    notes.append(f"downsample {manifest.model.downsample} only: pass another --bundle for another preset")
 
     n_jobs = sum(len(plan(opts, r)) for r in range(opts.repeats))
     print(f"benchmarks: {opts.repeats} rounds, {n_jobs} processes on {opts.bundle} ({'; '.join(notes)})", flush=True)
@@ -490,7 +494,7 @@ def main(argv=None) -> int:
             "cold_repeats": opts.cold_repeats, "iters": opts.iters, "threads": opts.threads, "batches": opts.batches,
             "variants": opts.variants, "quick": opts.quick, "notes": notes, "total_seconds": total,
             "command": "python -m benchmarks.run " + " ".join(sys.argv[1:] if argv is None else argv),
-            "model": manifest["model"], "sampling_defaults": manifest.get("sampling_defaults")}
+            "model": manifest.model.to_dict(), "sampling_defaults": manifest.sampling_defaults.to_dict()}
     report = {"meta": meta, "summary": summarize(results, manifest, opts.bundle, opts), "results": results}
     md = markdown(report)
     opts.out.mkdir(parents=True, exist_ok=True)

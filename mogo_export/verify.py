@@ -21,10 +21,10 @@ import numpy as np
 import torch
 
 from mogo_runtime.bundle import Bundle
-from mogo_runtime.decoding import collect_tokens, decode_tokens, generate_tokens, make_rngs
+from mogo_runtime.decoding import GenerationTask, decode_tokens
+from mogo_runtime.engine import OrtBackend, open_backend
 from mogo_runtime.features import recover_from_ric
-from mogo_runtime.generator import OrtBackend
-from mogo_runtime.sampling import SamplingConfig
+from mogo_runtime.sampling import GREEDY
 
 from .export.graphs import DecoderGraph, StepGraph
 from .generate import TorchGenerator
@@ -90,7 +90,7 @@ def check_graphs(gen: TorchGenerator, ort_backend: OrtBackend, report: Report, t
             latent = vq.quantizer.lookup(idx)
             feats = DecoderGraph(vq, gen.backend.mean, gen.backend.std)(latent)
         got = ort_backend.decode(idx.numpy())
-        (got_latent,) = ort_backend.lookup_session.run(["latent"], {"tokens": idx.numpy()})
+        got_latent = ort_backend.lookup(idx.numpy())
         e1, e2 = np.abs(got_latent - latent.numpy()).max(), np.abs(got - feats.numpy()).max()
         report.add(f"lookup graph b={batch} tokens={T}", e1, f"< {th.fp32_abs:g}", e1 < th.fp32_abs)
         # features are de-normalised (metres and radians scale): compare relative to their magnitude
@@ -104,9 +104,7 @@ def check_graphs(gen: TorchGenerator, ort_backend: OrtBackend, report: Report, t
 
 
 def _ort_tokens(backend, texts, seeds, max_tokens):
-    emb = backend.encode_text(texts)
-    steps = generate_tokens(backend, emb, SamplingConfig(temperature=0.0), make_rngs(seeds, len(texts)), max_tokens)
-    return collect_tokens(steps, len(texts), backend.dims.num_levels)
+    return GenerationTask(backend, GREEDY, max_tokens).tokens(backend.encode_text(texts), seeds)
 
 
 def _agreement(a: np.ndarray, b: np.ndarray) -> float:
@@ -116,7 +114,7 @@ def _agreement(a: np.ndarray, b: np.ndarray) -> float:
     return float(same) / max(1, max(len(a), len(b)) * a.shape[1])
 
 
-def _teacher_forced(fp32: OrtBackend, int8: OrtBackend, prompts: list[str], sequences) -> tuple[float, float]:
+def _teacher_forced(fp32: OrtBackend, int8, prompts: list[str], sequences) -> tuple[float, float]:
     """Step both variants, one step at a time as the runtime does, through each fp32 greedy sequence (and its
     END step); -> (fraction of (step, level) argmaxes equal, max abs logit difference)."""
     same = total = 0
@@ -137,7 +135,7 @@ def _teacher_forced(fp32: OrtBackend, int8: OrtBackend, prompts: list[str], sequ
     return same / max(1, total), worst
 
 
-def check_end_to_end(gen: TorchGenerator, fp32: OrtBackend, int8: OrtBackend | None, report: Report,
+def check_end_to_end(gen: TorchGenerator, fp32: OrtBackend, int8, report: Report,
                      th: Thresholds, prompts=PROMPTS) -> None:
     prompts = list(prompts)
     seeds = list(range(len(prompts)))
@@ -176,7 +174,7 @@ def verify(bundle_path: str | Path, ckpt_dir: str | Path, th: Thresholds = Thres
     bundle = Bundle.load(bundle_path)
     gen = TorchGenerator.from_checkpoints(ckpt_dir)
     fp32 = OrtBackend(bundle, "fp32", threads=2)
-    q = OrtBackend(bundle, "int8", threads=2) if int8 and "int8" in bundle.variants else None
+    q = open_backend(bundle, "int8", threads=2) if int8 and "int8" in bundle.variants else None
     report = Report()
     check_graphs(gen, fp32, report, th)
     check_end_to_end(gen, fp32, q, report, th, prompts)

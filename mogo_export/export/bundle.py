@@ -21,16 +21,18 @@ import onnxscript
 import torch
 from onnxruntime.quantization import QuantType, quantize_dynamic
 
-from mogo_runtime.bundle import SCHEMA, SCHEMA_VERSION, sha256_file
-from mogo_runtime.features import FeatureLayout
+from mogo_runtime.bundle import sha256_file
+from mogo_runtime.files import write_atomic
+from mogo_runtime.manifest import (SCHEMA, SCHEMA_VERSION, GraphFile, GraphSpec, Manifest, Normalization,
+                                   TensorSpec, TextEncoderSpec)
 from mogo_runtime.sampling import SamplingConfig
 from mogo_runtime.skeleton import get_skeleton
 
 from .. import __version__
-from ..checkpoint import build_from_checkpoint
+from ..checkpoint import load_trained, model_dims
 from ..models.text_encoder import get_text_encoder
-from ..models.transformer import RQHCTransformer, TransformerConfig
-from ..models.vq import MoSAVQ, VQConfig
+from ..models.transformer import RQHCTransformer
+from ..models.vq import MoSAVQ
 from .caption_index import build_caption_index, tca_manifest_section
 from .graphs import DEFAULT_OPSET, export_decoder, export_lookup, export_step
 from .text_encoder import export_text_encoder, quantize_text_encoder
@@ -39,22 +41,9 @@ INT8_GRAPHS = ("step", "text_encoder")  # lookup and decoder stay fp32: ConvInte
 SAMPLING_DEFAULTS = SamplingConfig(temperature=1.0, top_k=None, top_p=0.95, guidance=1.0)
 
 
-def load_models(ckpt_dir: Path):
-    vq, _, vq_payload = build_from_checkpoint(ckpt_dir / "vq.pt", "vq", VQConfig, MoSAVQ)
-    tr, _, tr_payload = build_from_checkpoint(ckpt_dir / "transformer.pt", "transformer", TransformerConfig,
-                                              RQHCTransformer)
-    return vq, vq_payload, tr, tr_payload
-
-
-def model_facts(vq: MoSAVQ, tr: RQHCTransformer, fps: float, max_tokens: int) -> dict:
-    t, v = tr.cfg, vq.cfg
-    return {
-        "num_levels": t.num_levels, "codebook_size": t.codebook_size, "end_id": t.end_id, "bos_id": t.bos_id,
-        "pad_id": t.pad_id, "n_layers": t.n_layers, "n_heads": t.n_heads, "head_dim": t.d_model // t.n_heads,
-        "d_model": t.d_model, "text_dim": t.text_dim, "max_rel_dist": t.max_rel_dist, "downsample": v.downsample,
-        "fps": fps, "receptive_field": vq.receptive_field, "feature_dim": v.input_dim, "latent_dim": v.code_dim,
-        "max_tokens": max_tokens, "learnable_scaling": v.learnable_scaling,
-    }
+def _graph_spec(io: dict) -> GraphSpec:
+    return GraphSpec(*(tuple(TensorSpec(d["name"], d["dtype"], tuple(d["shape"])) for d in io[k])
+                       for k in ("inputs", "outputs")))
 
 
 def quantize_step(fp32: Path, int8: Path) -> dict:
@@ -84,23 +73,25 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
     unknown = set(int8) - set(INT8_GRAPHS)
     if unknown:
         raise ValueError(f"--int8 accepts {list(INT8_GRAPHS)}; got {sorted(unknown)}")
-    vq, vq_payload, tr, tr_payload = load_models(ckpt_dir)
+    trained = load_trained(ckpt_dir)  # every meta field checked; no defaults
+    vq, tr, vq_payload, tr_payload = trained.vq, trained.transformer, trained.vq_payload, trained.transformer_payload
     meta = vq_payload["meta"]
-    fps = float(meta.get("fps", 20.0))
-    skeleton = get_skeleton(meta.get("skeleton", "humanml3d"))
-    facts = model_facts(vq, tr, fps, int(tr_payload["meta"].get("max_tokens", 50)))
-    encoder = get_text_encoder(tr_payload["meta"].get("text_encoder", "all-MiniLM-L6-v2"))
-    if encoder.dim != facts["text_dim"]:
+    fps = trained.fps
+    skeleton = get_skeleton(trained.skeleton)
+    dims = model_dims(vq, tr, fps, trained.max_tokens)
+    encoder = get_text_encoder(trained.text_encoder_name)
+    if encoder.dim != dims.text_dim:
         raise ValueError(f"text encoder {encoder.name!r} gives {encoder.dim}-dim embeddings, the transformer "
-                         f"expects {facts['text_dim']}")
+                         f"expects {dims.text_dim}")
 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     try:
+        # every graph carries the model facts; the runtime checks them against the manifest when it loads one
         graph_meta = {"mogo.schema": SCHEMA, "mogo.schema_version": SCHEMA_VERSION, "mogo.producer": __version__,
-                      **{f"mogo.{k}": v for k, v in facts.items()}}
+                      **{f"mogo.{k}": v for k, v in dims.to_dict().items()}}
         t0 = time.perf_counter()
         graphs, variants = {}, {"fp32": {}, "int8": {}}
         log("exporting text_encoder ...")
@@ -119,38 +110,37 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
         else:
             log(f"no TCA caption index: dataset {data_root} not found (pass data=... / --data)")
         for g in graphs:
-            variants["fp32"][g] = {"file": f"{g}.onnx"}
-            variants["int8"][g] = {"file": f"{g}.onnx"}
+            variants["fp32"][g] = GraphFile(f"{g}.onnx")
+            variants["int8"][g] = GraphFile(f"{g}.onnx")
         for g in int8:
             log(f"quantizing {g} to int8 ...")
             fp32, q = tmp / f"{g}.onnx", tmp / f"{g}.int8.onnx"
             options = quantize_text_encoder(fp32, q) if g == "text_encoder" else quantize_step(fp32, q)
-            variants["int8"][g] = {"file": q.name, "quantization": {"method": "onnxruntime.quantize_dynamic",
-                                                                     **options}}
-        files = {p.name: {"bytes": p.stat().st_size, "sha256": sha256_file(p)} for p in sorted(tmp.iterdir())}
-        manifest = {
-            "schema": SCHEMA,
-            "schema_version": SCHEMA_VERSION,
-            "producer": {"name": "mogo-export", "version": __version__, "torch": torch.__version__,
+            variants["int8"][g] = GraphFile(q.name, {"method": "onnxruntime.quantize_dynamic", **options})
+        te_meta = te.get("metadata", {})
+        manifest = Manifest(
+            producer={"name": "mogo-export", "version": __version__, "torch": torch.__version__,
                          "onnx": onnx.__version__, "onnxruntime": onnxruntime.__version__,
                          "onnxscript": onnxscript.__version__, "python": platform.python_version(),
                          "opset": opset, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                          "checkpoints": {"vq_step": vq_payload["train"].get("step"),
                                          "transformer_step": tr_payload["train"].get("step"),
-                                         "preset": meta.get("preset")}},
-            "model": facts,
-            "skeleton": skeleton.to_dict(),
-            "features": FeatureLayout.for_skeleton(skeleton).to_dict(),
-            "normalization": {"mode": "decoder-output-denormalised", "mean": np.round(meta["mean"], 7).tolist(),
-                              "std": np.round(meta["std"], 7).tolist()},
-            "text_encoder": {"name": encoder.name, "tokenizer": "tokenizer.json", **te.get("metadata", {})},
-            "sampling_defaults": SAMPLING_DEFAULTS.to_dict(),
-            **({"tca": tca} if tca else {}),
-            "graphs": graphs,
-            "variants": variants,
-            "files": files,
-        }
-        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+                                         "preset": meta.get("preset"),
+                                         "learnable_scaling": vq.cfg.learnable_scaling}},
+            model=dims,
+            skeleton=skeleton,
+            normalization=Normalization(mean=tuple(np.round(meta["mean"], 7).tolist()),
+                                        std=tuple(np.round(meta["std"], 7).tolist())),
+            text_encoder=TextEncoderSpec(name=encoder.name, tokenizer="tokenizer.json",
+                                         max_length=int(te_meta["max_length"]), pooling=te_meta.get("pooling", "mean")),
+            sampling_defaults=SAMPLING_DEFAULTS,
+            tca=tca,
+            graphs={g: _graph_spec(io) for g, io in graphs.items()},
+            variants=variants,
+            files={p.name: (p.stat().st_size, sha256_file(p)) for p in sorted(tmp.iterdir())},
+        )
+        text = json.dumps(Manifest.parse(manifest.to_dict(), "manifest.json").to_dict(), indent=2) + "\n"
+        write_atomic(tmp / "manifest.json", lambda f: f.write(text.encode()))
         if out.exists():  # replace an older bundle only now that the new one is complete
             old = out.parent / f".{out.name}.old-{os.getpid()}"
             out.rename(old)

@@ -22,9 +22,12 @@ import sys
 import time
 import warnings
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
-from .bundle import GRAPHS, Bundle, BundleError, sha256_file
+from .bundle import GRAPHS, Bundle, BundleError
+from .manifest import SCHEMA_VERSION
+from .sampling import SamplingConfig
 from .motion import SAVE_FORMATS, check_output_path
 
 DEFAULT_BUNDLE = "bundles/base"
@@ -116,18 +119,15 @@ def _load_generator(args):
     from .generator import MotionGenerator   # onnxruntime is imported only by commands that run graphs
 
     path, from_env = (args.bundle, False) if args.bundle is not None else default_bundle()
-    try:
-        bundle = Bundle.load(path)
-    except BundleError as e:
-        if args.bundle is None and not path.exists():
-            where = "from $MOGO_BUNDLE" if from_env else "the default bundle path"
-            raise BundleError(f"{e} ({where}); pass --bundle PATH or set $MOGO_BUNDLE, or build bundles/base "
-                              f"with `make demo`") from None
-        raise
-    # no argparse default for --variant: argparse would then miss "--int8 --variant fp32" as a conflict
-    gen = MotionGenerator(bundle, variant=args.variant or "fp32", threads=args.threads)
+    if args.bundle is None and not path.exists():
+        where = "from $MOGO_BUNDLE" if from_env else "the default bundle path"
+        raise BundleError(f"{path}: bundle folder not found ({where}); pass --bundle PATH or set $MOGO_BUNDLE, "
+                          f"or build bundles/base with `make demo`")
+    # The generator loads and checks only the files of the variant it runs (cold start).
+    # No argparse default for --variant: argparse would then miss "--int8 --variant fp32" as a conflict.
+    gen = MotionGenerator(path, variant="fp32" if args.variant is None else args.variant, threads=args.threads)
     if args.rewriter_url:  # the offline aligner stays as the fallback; sessions are opened once
-        from .tca import ChatRewriter
+        from .tca.rewriter import ChatRewriter
 
         gen.aligner = ChatRewriter(args.rewriter_url, args.rewriter_model or "default", fallback=gen.aligner)
     return gen
@@ -153,8 +153,10 @@ def _warnings_as_lines():
                 print(f"mogo: warning: {w.message}", file=sys.stderr)
 
 
-def _sampling(args) -> dict:
-    return {"temperature": args.temperature, "top_k": args.top_k, "top_p": args.top_p, "guidance": args.guidance}
+def _sampling(args, defaults: SamplingConfig) -> SamplingConfig:
+    """The bundle's defaults with the flags given on the command line (--top-k 0: no top-k cut)."""
+    given = {"temperature": args.temperature, "top_k": args.top_k, "top_p": args.top_p, "guidance": args.guidance}
+    return replace(defaults, **{k: v for k, v in given.items() if v is not None})
 
 
 def _check_text(text: str) -> None:
@@ -170,7 +172,7 @@ def cmd_generate(args) -> int:
         check_output_path(out)
     gen = _load_generator(args)
     fixed = gen.tokens_for(args.seconds)
-    gen.sampling_config(**_sampling(args))
+    sampling = _sampling(args, gen.sampling_defaults)
     show = sys.stderr.isatty()
 
     def progress(step: int, limit: int) -> None:
@@ -179,7 +181,7 @@ def cmd_generate(args) -> int:
     start = time.perf_counter()
     with _warnings_as_lines():
         motion = gen.generate(args.text, seconds=args.seconds, seed=args.seed, progress=progress if show else None,
-                              align=align, **_sampling(args))
+                              align=align, sampling=sampling)
     took = time.perf_counter() - start
     if show:
         print(file=sys.stderr)
@@ -201,7 +203,8 @@ def cmd_stream(args) -> int:
     align = _align(args)
     gen = _load_generator(args)
     with _warnings_as_lines():
-        frames = gen.stream(args.text, seconds=args.seconds, seed=args.seed, align=align, **_sampling(args))
+        frames = gen.stream(args.text, seconds=args.seconds, seed=args.seed, align=align,
+                            sampling=_sampling(args, gen.sampling_defaults))
     if align:
         print(f"mogo: aligned prompt: {frames.aligned_text!r}", file=sys.stderr, flush=True)
     out = sys.stdout
@@ -223,35 +226,38 @@ def cmd_stream(args) -> int:
 def cmd_info(args) -> int:
     path = args.bundle if args.bundle is not None else default_bundle()[0]
     bundle = Bundle.load(path, verify_hashes=False, check_graphs=False)   # hashes are checked below, one by one
-    m = bundle.manifest
-    model, producer = m["model"], m.get("producer", {})
-    d = bundle.dims
-    print(f"bundle     {bundle.path.resolve()}")
+    m, d = bundle.manifest, bundle.dims
+    producer = m.producer or {}
     made = {k: producer[k] for k in ("name", "version", "torch", "onnx", "onnxruntime", "opset", "created")
             if k in producer}
-    print(f"schema     {m['schema']} v{m['schema_version']}; producer {_describe(made)}")
-    print(f"model      levels {d.num_levels}, codebook {d.codebook_size}, layers {model.get('n_layers')}, "
-          f"heads {model.get('n_heads')} x {model.get('head_dim')}, text_dim {d.text_dim}, "
-          f"latent_dim {model.get('latent_dim')}")
+    print(f"bundle     {bundle.path.resolve()}")
+    print(f"schema     mogo-bundle v{SCHEMA_VERSION}; producer {_describe(made)}")
+    print(f"model      levels {d.num_levels}, codebook {d.codebook_size}, layers {d.n_layers}, "
+          f"heads {d.n_heads} x {d.head_dim}, text_dim {d.text_dim}, latent_dim {d.latent_dim}")
     print(f"motion     {d.fps:g} fps, {d.downsample} frames/token, receptive field {d.receptive_field} tokens, "
-          f"max {model['max_tokens']} tokens ({model['max_tokens'] * d.downsample / d.fps:g} s)")
+          f"max {d.max_tokens} tokens ({d.max_seconds:g} s)")
     print(f"skeleton   {bundle.skeleton.name}, {bundle.skeleton.num_joints} joints, {d.feature_dim} features")
-    te = m.get("text_encoder", {})
-    print(f"text       {te.get('name')}, max_length {te.get('max_length')}, pooling {te.get('pooling')}")
-    print(f"sampling   {_describe(m.get('sampling_defaults', {}))}")
+    te = m.text_encoder
+    print(f"text       {te.name}, max_length {te.max_length}, pooling {te.pooling}")
+    print(f"sampling   {_describe(m.sampling_defaults.to_dict())}")
     print("variants")
     for v in bundle.variants:
         files = [bundle.graph_file(g, v).name for g in GRAPHS]
         print(f"  {v:<8} {_mb(bundle.total_bytes(v)):>9}  " + ", ".join(f"{g}={f}" for g, f in zip(GRAPHS, files)))
     print("files")
     failed = []
-    for name, entry in m["files"].items():
-        ok = sha256_file(bundle.path / name) == entry["sha256"]
+    for name, (size, digest) in m.files.items():
+        try:
+            bundle.check_file(name)
+            ok = True
+        except BundleError:
+            ok = False
         failed += [] if ok else [name]
-        print(f"  {name:<28} {_mb(entry['bytes']):>9}  sha256 {entry['sha256'][:16]}  {'OK' if ok else 'FAILED'}")
+        print(f"  {name:<28} {_mb(size):>9}  sha256 {digest[:16]}  {'OK' if ok else 'FAILED'}")
     if failed:
-        raise BundleError(f"{bundle.path}: {len(failed)} file(s) do not match their sha256 in manifest.json: "
-                          f"{', '.join(failed)} (corrupted or replaced; re-export or re-copy the bundle)")
+        raise BundleError(f"{bundle.path}: {len(failed)} file(s) missing or not matching their size and sha256 in "
+                          f"manifest.json: {', '.join(failed)} (corrupted or replaced; re-export or re-copy the "
+                          f"bundle)")
     bundle.check_graph_signatures()
     print("graphs     inputs and outputs match the manifest")
     return 0

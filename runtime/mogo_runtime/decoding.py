@@ -5,38 +5,21 @@ quantizer level for the next time step (all L level streams in one pass); the sa
 level-0 stream choosing END stops a prompt. Frames come from the causal motion decoder, either once at the end
 (`decode_tokens`) or window by window as tokens arrive (`FrameStreamer`), with identical results because a
 frame depends only on the last `receptive_field + 1` tokens.
+
+`GenerationTask` is the whole recipe (seeds -> token loop -> tokens -> features -> joints): the Python API,
+the torch reference, the parity verifier and evaluation all run it, so they cannot drift apart.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterator, Protocol
+from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
+from .features import recover_from_ric
+from .manifest import ModelDims
+from .motion import RootIntegrator
 from .sampling import SamplingConfig, apply_guidance, sample
-
-
-@dataclass(frozen=True)
-class ModelDims:
-    num_levels: int          # L: residual quantizer levels = parallel streams of the transformer
-    codebook_size: int       # K: codes per level; END = K, BOS = K + 1, PAD = K + 2
-    downsample: int          # motion frames per token
-    receptive_field: int     # tokens of history (besides its own) that a decoded frame depends on
-    feature_dim: int         # 263 for HumanML3D features
-    text_dim: int            # width of the text embedding the step graph takes
-    fps: float
-
-    @property
-    def end_id(self) -> int:
-        return self.codebook_size
-
-    @property
-    def bos_id(self) -> int:
-        return self.codebook_size + 1
-
-    @property
-    def pad_id(self) -> int:
-        return self.codebook_size + 2
 
 
 class Backend(Protocol):
@@ -55,11 +38,24 @@ class Backend(Protocol):
         """Codebook lookup + causal decoder: -> de-normalised features (B, T * downsample, feature_dim)."""
 
 
-def make_rngs(seed: int | list[int], batch: int) -> list[np.random.Generator]:
-    """One generator per prompt: prompt i of a batch with seed s draws exactly what a lone run with s + i does."""
-    seeds = list(seed) if isinstance(seed, (list, tuple)) else [int(seed) + i for i in range(batch)]
+def expand_seeds(seed: int | list[int], batch: int) -> list[int]:
+    """One seed per prompt: prompt i of a batch with seed s draws exactly what a lone run with s + i does."""
+    if isinstance(seed, (list, tuple)):
+        seeds = list(seed)
+    elif isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"seed must be an int >= 0 or a list of them, got {seed!r}")
+    else:
+        seeds = [int(seed) + i for i in range(batch)]
     if len(seeds) != batch:
         raise ValueError(f"got {len(seeds)} seeds for {batch} prompts")
+    for s in seeds:
+        if isinstance(s, (bool, np.bool_)) or not isinstance(s, (int, np.integer)) or not 0 <= s < 2 ** 63:
+            raise ValueError(f"seeds must be ints in [0, 2**63), got {s!r}")
+    return [int(s) for s in seeds]
+
+
+def make_rngs(seeds: list[int]) -> list[np.random.Generator]:
+    """The random stream of each prompt: numpy's PCG64 seeded with the prompt's seed."""
     return [np.random.Generator(np.random.PCG64(s)) for s in seeds]
 
 
@@ -122,6 +118,9 @@ def decode_tokens(backend: Backend, token_seqs: list[np.ndarray]) -> list[np.nda
     return [feats[b, :len(seq) * ds] for b, seq in enumerate(token_seqs)]
 
 
+MAX_CHUNK = 1024   # tokens per decode; more only delays frames (and the window is allocated up front)
+
+
 class FrameStreamer:
     """Turns tokens into frames as they arrive, decoding only the window the new frames depend on.
 
@@ -133,8 +132,9 @@ class FrameStreamer:
     """
 
     def __init__(self, backend: Backend, batch: int, chunk: int = 1):
-        if not isinstance(chunk, int) or isinstance(chunk, bool) or chunk < 1:
-            raise ValueError(f"chunk must be an int >= 1, got {chunk!r}")
+        if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or not 1 <= chunk <= MAX_CHUNK:
+            raise ValueError(f"chunk must be an int in [1, {MAX_CHUNK}], got {chunk!r}")
+        chunk = int(chunk)
         self.backend, self.chunk = backend, chunk
         self.window = backend.dims.receptive_field + chunk
         self.tokens = np.zeros((batch, self.window, backend.dims.num_levels), np.int64)
@@ -163,3 +163,72 @@ class FrameStreamer:
         out = feats[:, -self.pending * self.backend.dims.downsample:]
         self.pending = 0
         return out
+
+
+@dataclass
+class Generated:
+    """One prompt's result: its tokens, their decoded features and the joints they give."""
+
+    tokens: np.ndarray      # (T, L) int64
+    features: np.ndarray    # (T * downsample, D) de-normalised
+    joints: np.ndarray      # (T * downsample, J, 3) metres, y up
+
+
+@dataclass
+class GenerationTask:
+    """The generation recipe for one backend and one set of settings: prompts' embeddings and seeds in,
+    tokens, features and joints out, all at once (`run`) or frame by frame (`stream`).
+
+    `fixed_tokens` fixes the length (END never chosen); None lets the model end each motion, at most
+    `max_tokens`.
+    """
+
+    backend: Backend
+    sampling: SamplingConfig
+    max_tokens: int
+    fixed_tokens: int | None = None
+
+    @property
+    def num_joints(self) -> int:
+        return (self.backend.dims.feature_dim + 1) // 12     # HumanML3D layout: D = 12 J - 1
+
+    def steps(self, text_emb: np.ndarray, seeds: list[int]) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        return generate_tokens(self.backend, text_emb, self.sampling, make_rngs(seeds), self.max_tokens,
+                               self.fixed_tokens)
+
+    def tokens(self, text_emb: np.ndarray, seeds: list[int],
+               progress: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
+        """-> one (T_b, L) token array per prompt. `progress(step, limit)` is called after every step."""
+        steps = self.steps(text_emb, seeds)
+        if progress is not None:
+            steps = _report(steps, progress, self.fixed_tokens or self.max_tokens)
+        return collect_tokens(steps, len(seeds), self.backend.dims.num_levels)
+
+    def run(self, text_emb: np.ndarray, seeds: list[int],
+            progress: Callable[[int, int], None] | None = None) -> list[Generated]:
+        token_seqs = self.tokens(text_emb, seeds, progress)
+        return [Generated(tok, f, recover_from_ric(f, self.num_joints))
+                for tok, f in zip(token_seqs, decode_tokens(self.backend, token_seqs))]
+
+    def stream(self, text_emb: np.ndarray, seed: int, chunk: int = 4) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """One prompt's frames as its tokens are sampled: yields (features (n, D), joints (n, J, 3)), n >= 1."""
+        streamer = FrameStreamer(self.backend, 1, chunk)     # checks chunk now, not at the first frame
+        return self._stream(text_emb, seed, streamer)
+
+    def _stream(self, text_emb, seed, streamer: FrameStreamer):
+        integrator = RootIntegrator(self.num_joints)
+        for picked, alive in self.steps(text_emb, [seed]):
+            if not alive[0]:
+                break
+            features = streamer.push(picked)[0]
+            if len(features):
+                yield features, integrator.push(features)
+        features = streamer.flush()[0]
+        if len(features):
+            yield features, integrator.push(features)
+
+
+def _report(steps, progress: Callable[[int, int], None], limit: int):
+    for t, item in enumerate(steps):
+        yield item
+        progress(t + 1, limit)

@@ -5,27 +5,46 @@ generator and the onnxruntime runtime, and a seed means the same tokens in both.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 
+def _number(name: str, value, optional: bool = False) -> float | None:
+    """A real number (Python or numpy scalar), or None where allowed; bools and strings are refused."""
+    if value is None and optional:
+        return None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number{' or None' if optional else ''}, got {value!r}")
+    return float(value)
+
+
 @dataclass(frozen=True)
 class SamplingConfig:
     temperature: float = 1.0      # 0 = greedy (argmax), no randomness
-    top_k: int | None = None      # keep the k most likely codes (None = all)
+    top_k: int | None = None      # keep the k most likely codes (None or 0 = all)
     top_p: float | None = None    # nucleus: keep the smallest set with this much mass (None = all)
     guidance: float = 1.0         # classifier-free guidance scale; 1 = off (no unconditional pass)
 
     def __post_init__(self):
-        if not np.isfinite(self.temperature) or self.temperature < 0:
-            raise ValueError(f"temperature must be >= 0, got {self.temperature}")
-        if self.top_k is not None and self.top_k < 1:
-            raise ValueError(f"top_k must be >= 1 or None, got {self.top_k}")
-        if self.top_p is not None and not 0.0 < self.top_p <= 1.0:
-            raise ValueError(f"top_p must be in (0, 1] or None, got {self.top_p}")
-        if not np.isfinite(self.guidance) or self.guidance < 0:
-            raise ValueError(f"guidance must be >= 0, got {self.guidance}")
+        # one check for the API, the CLI and the manifest; values are stored as plain Python numbers
+        temperature = _number("temperature", self.temperature)
+        top_p, guidance = _number("top_p", self.top_p, optional=True), _number("guidance", self.guidance)
+        top_k = self.top_k
+        if top_k is not None and (isinstance(top_k, (bool, np.bool_)) or not isinstance(top_k, (int, np.integer))
+                                  or top_k < 0):
+            raise ValueError(f"top_k must be an int >= 1 (0 or None: no top-k cut), got {top_k!r}")
+        if not math.isfinite(temperature) or not 0 <= temperature <= 100:
+            raise ValueError(f"temperature must be in [0, 100] (0 = greedy), got {self.temperature!r}")
+        if top_p is not None and not 0.0 < top_p <= 1.0:
+            raise ValueError(f"top_p must be in (0, 1] or None, got {self.top_p!r}")
+        if not math.isfinite(guidance) or not 0 <= guidance <= 100:
+            raise ValueError(f"guidance must be in [0, 100] (1 = off), got {self.guidance!r}")
+        object.__setattr__(self, "temperature", temperature)
+        object.__setattr__(self, "top_k", int(top_k) if top_k else None)
+        object.__setattr__(self, "top_p", top_p)
+        object.__setattr__(self, "guidance", guidance)
 
     @property
     def greedy(self) -> bool:
@@ -33,6 +52,9 @@ class SamplingConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+GREEDY = SamplingConfig(temperature=0.0)
 
 
 def apply_guidance(cond: np.ndarray, uncond: np.ndarray, scale: float) -> np.ndarray:

@@ -67,7 +67,7 @@ def test_a_bundle_with_the_index_aligns_prompts(tmp_path, data, encoder, tiny_bu
     manifest["tca"] = tca_manifest_section(facts)
     manifest["files"]["captions.npz"] = {"bytes": facts["bytes"], "sha256": sha256_file(bundle_dir / "captions.npz")}
     (bundle_dir / "manifest.json").write_text(json.dumps(manifest))
-    assert set(manifest["tca"]) >= {"file", "count", "dtype", "encoder", "method", "top_k"}
+    assert set(manifest["tca"]) >= {"file", "count", "dtype", "encoder", "lexical_weight", "split_margin"}
 
     gen = MotionGenerator(Bundle.load(bundle_dir))
     assert isinstance(gen.aligner, OfflineAligner) and gen.aligner.has_index

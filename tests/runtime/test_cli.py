@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
 
-from mogo_runtime import MotionGenerator
+from mogo_runtime import MotionGenerator, SamplingConfig
 from mogo_runtime.cli import main
 
 TEXT = "a person walks forward and then jumps"
@@ -90,8 +90,8 @@ def test_generate_int8_and_sampling_flags(capsys, tmp_path, bundle_path, gen):
     code, _, err = run_cli(capsys, "generate", TEXT, "-o", out, "--bundle", bundle_path, "--int8",
                            "--temperature", 0.8, "--top-k", 5, "--top-p", 0.9, "--guidance", 2.0, "--seed", 3)
     assert code == 0, err
-    want = MotionGenerator(bundle_path, variant="int8").generate(TEXT, seed=3, temperature=0.8, top_k=5, top_p=0.9,
-                                                                 guidance=2.0)
+    want = MotionGenerator(bundle_path, variant="int8").generate(
+        TEXT, seed=3, sampling=SamplingConfig(temperature=0.8, top_k=5, top_p=0.9, guidance=2.0))
     assert np.array_equal(np.load(out), want.joints)
     assert "[int8, seed 3]" in err
 
@@ -238,9 +238,9 @@ def test_unwritable_output(capsys, tmp_path, toy_bundle):  # noqa: F811
     (["--variant", "fp16"], ["unknown variant 'fp16'", "fp32, int8"]),
     (["--top-k", "-3"], ["top_k"]),
     (["--top-p", "2"], ["top_p must be in (0, 1]"]),
-    (["--temperature", "-1"], ["temperature must be >= 0"]),
-    (["--threads", "0"], ["threads must be an int >= 1"]),
-    (["--seed", "-4"], ["seeds must be ints >= 0"]),
+    (["--temperature", "-1"], ["temperature must be in [0, 100]"]),
+    (["--threads", "0"], ["threads must be an int in [1, 64]"]),
+    (["--seed", "-4"], ["seeds must be ints in [0, 2**63)"]),
 ])
 def test_bad_settings(capsys, tmp_path, toy_bundle, args, needles):  # noqa: F811
     out = tmp_path / "a.npy"

@@ -2,10 +2,17 @@
 import numpy as np
 import pytest
 
-from mogo_runtime.decoding import FrameStreamer, ModelDims, collect_tokens, decode_tokens, generate_tokens, make_rngs
+from mogo_runtime.decoding import (FrameStreamer, collect_tokens, decode_tokens, expand_seeds, generate_tokens,
+                                   make_rngs)
+from mogo_runtime.manifest import ModelDims
 from mogo_runtime.sampling import SamplingConfig, sample
 
-DIMS = ModelDims(num_levels=3, codebook_size=7, downsample=2, receptive_field=2, feature_dim=4, text_dim=5, fps=20.0)
+DIMS = ModelDims(num_levels=3, codebook_size=7, n_layers=1, n_heads=1, head_dim=4, text_dim=5, max_rel_dist=8,
+                 downsample=2, fps=20.0, receptive_field=2, feature_dim=4, latent_dim=4, max_tokens=12)
+
+
+def rngs_for(seed, batch):
+    return make_rngs(expand_seeds(seed, batch))
 
 
 class ToyBackend:
@@ -45,7 +52,7 @@ class ToyBackend:
 
 
 def run(backend, emb, sampling, seed, **kw):
-    rngs = make_rngs(seed, len(emb))
+    rngs = rngs_for(seed, len(emb))
     return collect_tokens(generate_tokens(backend, emb, sampling, rngs, max_tokens=kw.pop("max_tokens", 12), **kw),
                           len(emb), DIMS.num_levels)
 
@@ -78,15 +85,15 @@ def test_end_token_only_from_level_zero_and_fixed_length_forbids_it():
 
 def test_top_k_one_and_tiny_top_p_are_greedy():
     logits = np.random.default_rng(5).normal(size=(4, 3, 11)).astype(np.float32)
-    greedy = sample(logits, SamplingConfig(temperature=0.0), make_rngs(0, 4))
+    greedy = sample(logits, SamplingConfig(temperature=0.0), rngs_for(0, 4))
     assert np.array_equal(greedy, logits.argmax(-1))
-    assert np.array_equal(sample(logits, SamplingConfig(temperature=1.5, top_k=1), make_rngs(0, 4)), greedy)
-    assert np.array_equal(sample(logits, SamplingConfig(temperature=1.5, top_p=1e-6), make_rngs(0, 4)), greedy)
+    assert np.array_equal(sample(logits, SamplingConfig(temperature=1.5, top_k=1), rngs_for(0, 4)), greedy)
+    assert np.array_equal(sample(logits, SamplingConfig(temperature=1.5, top_p=1e-6), rngs_for(0, 4)), greedy)
 
 
 def test_sampling_follows_the_distribution():
     logits = np.log(np.array([[[0.7, 0.2, 0.1]]], np.float32))
-    rngs = make_rngs(0, 1)
+    rngs = rngs_for(0, 1)
     picks = np.array([sample(logits, SamplingConfig(temperature=1.0), rngs)[0, 0] for _ in range(4000)])
     freq = np.bincount(picks, minlength=3) / len(picks)
     assert np.allclose(freq, [0.7, 0.2, 0.1], atol=0.03), freq
@@ -105,7 +112,7 @@ def test_guidance_runs_an_unconditional_branch_with_zero_text():
 def test_streamed_frames_equal_offline_decode():
     backend = ToyBackend(end_at=[7, 10])
     emb = np.random.default_rng(3).normal(size=(2, DIMS.text_dim)).astype(np.float32)
-    rngs = make_rngs(9, 2)
+    rngs = rngs_for(9, 2)
     streamer = FrameStreamer(backend, 2)
     frames = [[], []]
     for picked, alive in generate_tokens(backend, emb, SamplingConfig(temperature=1.0), rngs, max_tokens=12):
@@ -123,7 +130,7 @@ def test_chunked_streaming_returns_every_frame_once_and_exactly(chunk):
     emb = np.random.default_rng(4).normal(size=(1, DIMS.text_dim)).astype(np.float32)
     streamer = FrameStreamer(backend, 1, chunk)
     pieces, ready_after = [], []
-    for picked, alive in generate_tokens(backend, emb, SamplingConfig(temperature=1.0), make_rngs(5, 1), 12):
+    for picked, alive in generate_tokens(backend, emb, SamplingConfig(temperature=1.0), rngs_for(5, 1), 12):
         if not alive[0]:
             break
         pieces.append(streamer.push(picked)[0])
@@ -142,8 +149,14 @@ def test_bad_chunk_is_refused():
 
 
 def test_bad_sampling_options_are_refused():
-    for kw in ({"temperature": -1}, {"top_k": 0}, {"top_p": 0.0}, {"top_p": 1.5}, {"guidance": -2}):
+    for kw in ({"temperature": -1}, {"top_k": -1}, {"top_p": 0.0}, {"top_p": 1.5}, {"guidance": -2},
+               {"temperature": True}, {"top_k": 2.5}, {"top_p": "0.9"}, {"guidance": float("nan")},
+               {"temperature": 1e308}):
         with pytest.raises(ValueError):
             SamplingConfig(**kw)
+    # numpy scalars are numbers; top_k 0 means no top-k cut, like None
+    s = SamplingConfig(temperature=np.float32(0.5), top_k=np.int64(0), top_p=np.float64(0.9), guidance=np.float32(2))
+    assert (s.temperature, s.top_k, s.top_p, s.guidance) == (0.5, None, 0.9, 2.0)
+    assert type(s.temperature) is float and type(s.top_p) is float
     with pytest.raises(ValueError, match="seeds"):
-        make_rngs([1, 2], 3)
+        rngs_for([1, 2], 3)

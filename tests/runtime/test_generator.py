@@ -11,7 +11,8 @@ from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
 
 from mogo_runtime import Bundle, Frame, Motion, MotionGenerator
 from mogo_runtime.features import recover_from_ric
-from mogo_runtime.generator import OrtBackend
+from mogo_runtime.engine import OrtBackend, RowByRow
+from mogo_runtime.sampling import GREEDY, SamplingConfig
 
 PROMPTS = ["a person walks forward", "a person waves left hand", "kicks twice", "runs and then sits down",
            "turns around"]
@@ -58,24 +59,24 @@ def test_a_motion_is_consistent(gen):
 
 
 def test_same_seed_same_motion_and_the_seed_matters(gen):
-    a = gen.generate(PROMPTS[1], seed=7, temperature=1.0, top_k=0, top_p=1.0)
-    b = gen.generate(PROMPTS[1], seed=7, temperature=1.0, top_k=0, top_p=1.0)
+    a = gen.generate(PROMPTS[1], seed=7, sampling=SamplingConfig(temperature=1.0))
+    b = gen.generate(PROMPTS[1], seed=7, sampling=SamplingConfig(temperature=1.0))
     assert_same_motion(a, b, tol=0.0)
-    others = [gen.generate(PROMPTS[1], seed=s, temperature=1.0, top_k=0, top_p=1.0) for s in (8, 9)]
+    others = [gen.generate(PROMPTS[1], seed=s, sampling=SamplingConfig(temperature=1.0)) for s in (8, 9)]
     assert any(not np.array_equal(a.tokens, o.tokens) for o in others)
 
 
 def test_greedy_ignores_the_seed(gen):
-    a, b = (gen.generate(PROMPTS[2], seed=s, temperature=0) for s in (0, 5))
+    a, b = (gen.generate(PROMPTS[2], seed=s, sampling=GREEDY) for s in (0, 5))
     assert_same_motion(a, b, tol=0.0)
 
 
 @pytest.mark.parametrize("guidance", [1.0, 2.5])
 def test_batch_of_n_equals_n_single_runs_with_seeds_s_to_s_plus_n(gen, guidance):
-    batch = gen.generate(PROMPTS, seed=11, guidance=guidance)
+    batch = gen.generate(PROMPTS, seed=11, sampling=SamplingConfig(guidance=guidance))
     assert isinstance(batch, list) and [m.text for m in batch] == PROMPTS
     for i, text in enumerate(PROMPTS):
-        single = gen.generate(text, seed=11 + i, guidance=guidance)
+        single = gen.generate(text, seed=11 + i, sampling=SamplingConfig(guidance=guidance))
         assert batch[i].seed == 11 + i
         assert_same_motion(batch[i], single)
 
@@ -130,11 +131,13 @@ def test_seconds_round_to_the_nearest_token_half_up(gen):
 
 
 def test_none_means_the_bundles_sampling_defaults(gen, bundle):
-    d = bundle.manifest["sampling_defaults"]
+    d = bundle.manifest.sampling_defaults
+    assert d == SamplingConfig(temperature=1.0, top_p=0.95)     # what both test bundles were written with
     a = gen.generate(PROMPTS[0], seed=4)
-    b = gen.generate(PROMPTS[0], seed=4, temperature=d["temperature"], top_k=d["top_k"] or 0,
-                     top_p=d["top_p"] if d["top_p"] is not None else 1.0, guidance=d["guidance"])
+    b = gen.generate(PROMPTS[0], seed=4, sampling=SamplingConfig(temperature=1.0, top_p=0.95))
+    c = gen.generate(PROMPTS[0], seed=4, sampling=SamplingConfig(temperature=1.0))
     assert_same_motion(a, b, tol=0.0)
+    assert not np.array_equal(a.tokens, c.tokens)               # the default's top_p is applied
 
 
 def test_progress_is_reported_every_step(gen):
@@ -153,11 +156,12 @@ def test_int8_batch_equals_single_runs_too(bundle):
     # Dynamic int8 quantizes activations with one scale per tensor: batched rows would shift each other's
     # numbers, so quantized graphs run row by row and batching cannot change a prompt's motion.
     gen8 = MotionGenerator(bundle, variant="int8")
-    assert gen8.backend.row_by_row["step"]
-    batch = gen8.generate(PROMPTS[:3], seconds=seconds_of_bundle(bundle, 12), seed=20, guidance=2.0)
+    assert isinstance(gen8.backend, RowByRow) and "step" in gen8.backend.graphs
+    batch = gen8.generate(PROMPTS[:3], seconds=seconds_of_bundle(bundle, 12), seed=20,
+                          sampling=SamplingConfig(guidance=2.0))
     for i, text in enumerate(PROMPTS[:3]):
         assert_same_motion(batch[i], gen8.generate(text, seconds=seconds_of_bundle(bundle, 12), seed=20 + i,
-                                                   guidance=2.0), tol=0.0)
+                                                   sampling=SamplingConfig(guidance=2.0)), tol=0.0)
 
 
 def seconds_of_bundle(bundle, tokens):
@@ -166,16 +170,16 @@ def seconds_of_bundle(bundle, tokens):
 
 def test_backend_cache_grows_by_one_step_and_is_fed_back_as_is(bundle):
     backend = OrtBackend(bundle, threads=1)
-    model = bundle.manifest["model"]
+    model = bundle.dims
     emb = backend.encode_text(PROMPTS[:2])
     assert emb.shape == (2, bundle.dims.text_dim)
     past = backend.empty_past(2)
-    assert len(past) == 2 * model["n_layers"]
+    assert len(past) == 2 * model.n_layers
     tokens = np.full((2, 1, bundle.dims.num_levels), bundle.dims.bos_id, np.int64)
     for t in range(1, 4):
         logits, presents = backend.step(emb, tokens, past)
         assert logits.shape == (2, 1, bundle.dims.num_levels, bundle.dims.codebook_size + 1)
-        want = [2, model["num_levels"] * model["n_heads"], t, model["head_dim"]]
+        want = [2, model.num_levels * model.n_heads, t, model.head_dim]
         assert all(list(p.shape) == want for p in presents)
         # views of onnxruntime's own output buffers: nothing copied them on the way out (or back in)
         assert all(not p.flags["OWNDATA"] and p.flags["C_CONTIGUOUS"] and p.dtype == np.float32 for p in presents)
@@ -215,18 +219,28 @@ def test_bad_seconds_name_the_allowed_range(toy_gen, seconds):
         toy_gen.stream(PROMPTS[0], seconds=seconds)                       # raised at the call, not at next()
 
 
-@pytest.mark.parametrize("kwargs, match", [
+@pytest.mark.parametrize("sampling, match", [
     ({"top_k": -1}, "top_k must be an int >= 1"),
     ({"top_k": 2.5}, "top_k must be an int"),
     ({"top_k": True}, "top_k must be an int"),
     ({"top_p": 0.0}, r"top_p must be in \(0, 1\]"),
     ({"top_p": 1.5}, r"top_p must be in \(0, 1\]"),
-    ({"temperature": -0.1}, "temperature must be >= 0"),
+    ({"temperature": -0.1}, r"temperature must be in \[0, 100\]"),
     ({"temperature": "hot"}, "temperature must be a number"),
-    ({"guidance": -1.0}, "guidance must be >= 0"),
-    ({"seed": -1}, "seeds must be ints >= 0"),
+    ({"guidance": -1.0}, r"guidance must be in \[0, 100\]"),
+])
+def test_bad_sampling(sampling, match):
+    with pytest.raises(ValueError, match=match):
+        SamplingConfig(**sampling)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"seed": -1}, r"seeds must be ints in \[0, 2\*\*63\)"),
     ({"seed": 1.5}, "seed must be an int"),
+    ({"seed": True}, "seed must be an int"),
     ({"seed": [1, 2]}, "got 2 seeds for 1 prompts"),
+    ({"sampling": {"temperature": 0}}, "sampling must be a SamplingConfig"),
+    ({"seconds": True}, "seconds must be a number"),
 ])
 def test_bad_settings(toy_gen, kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -239,7 +253,10 @@ def test_unknown_variant_lists_the_available_ones(toy_bundle):  # noqa: F811
 
 
 def test_bad_threads_and_stream_takes_one_prompt(toy_bundle, toy_gen):  # noqa: F811
-    with pytest.raises(ValueError, match="threads must be an int >= 1"):
-        MotionGenerator(toy_bundle, threads=0)
+    for threads in (0, 10 ** 6, True, 1.0):
+        with pytest.raises(ValueError, match=r"threads must be an int in \[1, 64\]"):
+            MotionGenerator(toy_bundle, threads=threads)
+    with pytest.raises(ValueError, match="variant must be a variant name"):
+        MotionGenerator(toy_bundle, variant="")
     with pytest.raises(TypeError, match="use generate"):
         toy_gen.stream(PROMPTS[:2])

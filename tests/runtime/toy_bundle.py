@@ -18,6 +18,9 @@ from onnx import TensorProto, helper, numpy_helper
 from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
 
 from mogo_runtime.features import FeatureLayout
+from mogo_runtime.manifest import (GraphFile, GraphSpec, Manifest, ModelDims, Normalization, TensorSpec,
+                                   TextEncoderSpec)
+from mogo_runtime.sampling import SamplingConfig
 from mogo_runtime.skeleton import HUMANML3D
 from mogo_runtime.text import TokenizerSettings, configure_tokenizer
 
@@ -174,32 +177,26 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
     onnx.save(lookup(rng, specs["lookup"]), out / "lookup.onnx")
     onnx.save(decoder(rng, specs["decoder"], mean), out / "decoder.onnx")
     tokenizer().save(str(out / "tokenizer.json"))
-    fp32 = {g: {"file": f"{g}.onnx", "quantization": None} for g in specs}
+    fp32 = {g: GraphFile(f"{g}.onnx") for g in specs}
     variants = {"fp32": fp32}
     if int8:
         quantize_dynamic(str(out / "step.onnx"), str(out / "step.int8.onnx"), weight_type=QuantType.QInt8)
-        variants["int8"] = {**fp32, "step": {"file": "step.int8.onnx",
-                                             "quantization": {"method": "dynamic", "weight_type": "QInt8"}}}
-    files = {}
-    for p in sorted(out.iterdir()):
-        if p.is_file() and p.name != "manifest.json":
-            files[p.name] = {"bytes": p.stat().st_size, "sha256": hashlib.sha256(p.read_bytes()).hexdigest()}
-    manifest = {
-        "schema": "mogo-bundle", "schema_version": 1,
-        "producer": {"name": "tests/runtime/toy_bundle.py", "onnx": onnx.__version__, "opset": OPSET},
-        "model": {"num_levels": L, "codebook_size": K, "end_id": K, "bos_id": K + 1, "pad_id": K + 2,
-                  "n_layers": N_LAYERS, "n_heads": N_HEADS, "head_dim": HEAD_DIM, "d_model": N_HEADS * HEAD_DIM,
-                  "text_dim": TEXT_DIM, "max_rel_dist": 64, "downsample": DOWNSAMPLE, "fps": FPS,
-                  "receptive_field": RECEPTIVE, "feature_dim": D, "latent_dim": LATENT, "max_tokens": MAX_TOKENS},
-        "skeleton": HUMANML3D.to_dict(),
-        "features": FeatureLayout.for_skeleton(HUMANML3D).to_dict(),
-        "normalization": "decoder-output-denormalised",
-        "text_encoder": {"name": "toy", "max_length": MAX_LEN, "pooling": "mean", "tokenizer": "tokenizer.json"},
-        "sampling_defaults": {"temperature": 1.0, "top_k": None, "top_p": 0.95, "guidance": 1.0},
-        "graphs": specs,
-        "variants": variants,
-        "files": files,
-    }
+        variants["int8"] = {**fp32, "step": GraphFile("step.int8.onnx", {"method": "dynamic", "weight_type": "QInt8"})}
+    files = {p.name: (p.stat().st_size, hashlib.sha256(p.read_bytes()).hexdigest())
+             for p in sorted(out.iterdir()) if p.is_file() and p.name != "manifest.json"}
+    dims = ModelDims(num_levels=L, codebook_size=K, n_layers=N_LAYERS, n_heads=N_HEADS, head_dim=HEAD_DIM,
+                     text_dim=TEXT_DIM, max_rel_dist=64, downsample=DOWNSAMPLE, fps=FPS, receptive_field=RECEPTIVE,
+                     feature_dim=D, latent_dim=LATENT, max_tokens=MAX_TOKENS)
+    manifest = Manifest(
+        producer={"name": "tests/runtime/toy_bundle.py", "onnx": onnx.__version__, "opset": OPSET},
+        model=dims, skeleton=HUMANML3D,
+        normalization=Normalization(mean=tuple(float(x) for x in mean), std=(1.0,) * D),
+        text_encoder=TextEncoderSpec(name="toy", tokenizer="tokenizer.json", max_length=MAX_LEN),
+        sampling_defaults=SamplingConfig(temperature=1.0, top_p=0.95),
+        graphs={g: GraphSpec(*(tuple(TensorSpec(d["name"], d["dtype"], tuple(d["shape"])) for d in io[k])
+                               for k in ("inputs", "outputs"))) for g, io in specs.items()},
+        variants=variants, files=files)
+    manifest = manifest.to_dict()
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
     return out
 

@@ -1,7 +1,7 @@
 """Hand-written paraphrased prompts for measuring text condition alignment (TCA), each with its action family.
 
 Written to sound like people typing into a game or a chat box, NOT like the procedural captions
-(mogo_export/data/actions.py): other verbs, word order, slang, filler, emojis, objects the model never saw.
+(mogo_export/data/procedural/captions.py): other verbs, word order, slang, filler, emojis, objects the model never saw.
 Labels are the single-action families of the procedural dataset (`labels/*.txt`).
 
 Two sets, for an honest number:

@@ -1,11 +1,11 @@
 """The text-to-motion evaluation protocol of Guo et al. 2022 (the metrics of MOGO's Tables 2 and 3).
 
-    mogo-export train-evaluator --data data/procedural                  # -> data/procedural/evaluator.pt
-    mogo-export evaluate --data data/procedural --checkpoints checkpoints/base --bundle bundles/base \
+    mogo-eval train-evaluator --data data/procedural                  # -> data/procedural/evaluator.pt
+    mogo-eval evaluate --data data/procedural --checkpoints checkpoints/base --bundle bundles/base \
         [--variant fp32 --variant int8] [--evaluator E] [--repeats 20] [--json outputs/eval.json] \
         [--vq-ablation scaling/vq.pt no-scaling/vq.pt]
 
-Every metric is computed in the embedding space of a text-motion evaluator (`models/evaluator.py`): Guo et
+Every metric is computed in the embedding space of a text-motion evaluator (`judges/evaluator.py`): Guo et
 al.'s pretrained one where a user has its files, else a contrastive one trained here on the dataset folder
 (unit-length embeddings, so its distances lie in [0, 2]: compare rows of one table, not with published numbers).
 One repetition, for each source of motion (real, VQ reconstruction, torch generation, bundle fp32 / int8):
@@ -41,9 +41,10 @@ from tqdm import tqdm
 
 from mogo_runtime.sampling import SamplingConfig
 
-from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
-from .data.dataset import MotionDataset, read_captions
-from .models.evaluator import (ContrastiveEvaluator, Evaluator, EvaluatorConfig, T2MEvaluator, TrainedEvaluator,
+from mogo_export.checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
+from mogo_export.data.dataset import MotionDataset, read_captions
+
+from .judges.evaluator import (ContrastiveEvaluator, Evaluator, EvaluatorConfig, T2MEvaluator, TrainedEvaluator,
                                pad_motions)
 
 METRICS = ("top1", "top2", "top3", "fid", "mm_dist", "diversity", "multimodality")
@@ -180,7 +181,7 @@ def real_source(name: str = "Real motion") -> MotionSource:
 
 def vq_source(vq_path: Path, name: str = "VQ reconstruction") -> MotionSource:
     """Encode and decode each real crop with a MoSA-VQ checkpoint (normalised with the VQ's own statistics)."""
-    from .models.vq import MoSAVQ, VQConfig
+    from mogo_export.models.vq import MoSAVQ, VQConfig
 
     vq, cfg, payload = build_from_checkpoint(vq_path, "vq", VQConfig, MoSAVQ)
     mean = np.asarray(payload["meta"]["mean"], np.float32)
@@ -228,7 +229,9 @@ def _by_length(generate, downsample: int, length: str, chunk: int):
 
 def torch_source(ckpt_dir: Path, sampling: SamplingConfig, length: str = "model", chunk: int = 32,
                  name: str = "MOGO (torch)") -> MotionSource:
-    from .generate import TorchGenerator, torch_features
+    from mogo_export.generate import TorchGenerator
+
+    from .features import torch_features
 
     fg = torch_features(TorchGenerator.from_checkpoints(ckpt_dir), sampling)
     return MotionSource(name, _by_length(fg.generate, fg.downsample, length, chunk), stochastic=True)
@@ -236,9 +239,9 @@ def torch_source(ckpt_dir: Path, sampling: SamplingConfig, length: str = "model"
 
 def bundle_source(bundle: Path, variant: str, sampling: SamplingConfig | None = None, length: str = "model",
                   chunk: int = 32, threads: int = 2, align: bool = False, name: str | None = None) -> MotionSource:
-    """A bundle variant through the runtime (generate.bundle_features); sampling None = the bundle's.
+    """A bundle variant through the runtime (features.bundle_features); sampling None = the bundle's.
     `align`: condition on the TCA-aligned prompts (the paper's "w/ TCA" rows)."""
-    from .generate import bundle_features
+    from .features import bundle_features
 
     fg = bundle_features(bundle, variant, sampling, threads, align)
     name = name or f"MOGO bundle {variant}" + (" + TCA" if align else "")
@@ -374,7 +377,7 @@ class EvaluatorSchedule:
 def fit_evaluator(data: Path, cfg: EvaluatorConfig | None = None, schedule: EvaluatorSchedule | None = None,
                   seed: int = 0, progress: bool = True, text_encoder=None):
     """Train a ContrastiveEvaluator on the train split. -> (model, mean, std, losses per step)."""
-    from .models.text_encoder import get_text_encoder
+    from mogo_export.models.text_encoder import get_text_encoder
 
     sched = schedule or EvaluatorSchedule()
     ds = MotionDataset.load(data, "train")
@@ -455,8 +458,8 @@ def load_evaluator(path: Path | None, data: Path | None = None, glove: Path | No
         path = Path(data) / "evaluator.pt"
         if not path.exists():
             if not train_if_missing:
-                raise FileNotFoundError(f"no evaluator at {path}; train one with `mogo-export train-evaluator`")
-            print(f"no evaluator at {path}: training one (mogo-export train-evaluator)")
+                raise FileNotFoundError(f"no evaluator at {path}; train one with `mogo-eval train-evaluator`")
+            print(f"no evaluator at {path}: training one (mogo-eval train-evaluator)")
             train_evaluator(data, path, progress=progress)
     path = Path(path)
     if path.is_dir() or path.suffix == ".tar":
@@ -506,7 +509,7 @@ def evaluate(req: EvaluateRequest, progress: bool = True) -> dict:
     cases = load_cases(req.data, cfg.split)
     sampling = bundle_sampling(req.bundle) if req.bundle else None
     if sampling is None:
-        from .export.bundle import SAMPLING_DEFAULTS            # what an exported bundle would ship
+        from mogo_export.export.bundle import SAMPLING_DEFAULTS            # what an exported bundle would ship
         sampling = SAMPLING_DEFAULTS
     sources = [real_source()]
     if req.checkpoints:

@@ -14,7 +14,7 @@ Two evaluators, one interface (`embed_motions`, `embed_texts`):
   its GloVe subset, `meta/{mean,std}.npy` the statistics its motions were normalised with.) Those weights cannot be
   downloaded here, so this path is checked with weights of the same shapes, not with the real file.
 
-- `ContrastiveEvaluator`: the default, trained on any dataset folder by `mogo_export.evaluation.train_evaluator`.
+- `ContrastiveEvaluator`: the default, trained on any dataset folder by `mogo_eval.protocol.train_evaluator`.
   Motion side: Guo's strided-conv "movement" units (4 frames each), then dilated convolutions and pooling
   (a GRU trained too slowly on 2 CPU cores) -> 512; text side: the frozen MiniLM sentence embedding -> MLP ->
   512; trained with a symmetric InfoNCE loss. Its numbers are comparable
@@ -400,7 +400,7 @@ class TrainedEvaluator(Evaluator):
     @property
     def text_encoder(self):
         if self._text_encoder is None:
-            from .text_encoder import get_text_encoder
+            from mogo_export.models.text_encoder import get_text_encoder
 
             self._text_encoder = get_text_encoder(self.model.cfg.text_encoder)
         return self._text_encoder

@@ -1,6 +1,6 @@
 """Quality on the procedural data: VQ reconstruction, action accuracy of generated motion, diversity, GIFs.
 
-    mogo-export quality --data data/procedural --checkpoints checkpoints/base [--gif outputs/families.gif] \
+    mogo-eval quality --data data/procedural --checkpoints checkpoints/base [--gif outputs/families.gif] \
         [--bundle bundles/base] [--seeds 3]
 
 A motion classifier trained on the training split (labels ship with the dataset) judges whether a motion
@@ -20,12 +20,14 @@ from tqdm import tqdm
 from mogo_runtime.files import write_atomic
 from mogo_runtime.sampling import SamplingConfig
 
-from .checkpoint import build_from_checkpoint, save_checkpoint
-from .data.dataset import MotionDataset
-from .generate import FeatureGenerator, TorchGenerator, bundle_features, torch_features
-from .models.classifier import ClassifierConfig, MotionClassifier
-from .models.vq import MoSAVQ, VQConfig
-from .train import evaluate_vq
+from mogo_export.checkpoint import build_from_checkpoint, save_checkpoint
+from mogo_export.data.dataset import MotionDataset
+from mogo_export.generate import TorchGenerator
+from mogo_export.models.vq import MoSAVQ, VQConfig
+from mogo_export.train import evaluate_vq
+
+from .features import FeatureGenerator, bundle_features, torch_features
+from .judges.classifier import ClassifierConfig, MotionClassifier
 
 
 def single_family(label: str | None) -> str | None:
@@ -168,7 +170,7 @@ def quality_report(data: Path, ckpt_dir: Path, gif: Path | None = None, bundle: 
         from mogo_runtime.bundle import Bundle
 
         variants = list(Bundle.load(bundle).variants)
-    from .export.bundle import SAMPLING_DEFAULTS as sampling  # what bundles ship, so every row samples alike
+    from mogo_export.export.bundle import SAMPLING_DEFAULTS as sampling  # what bundles ship, so every row samples alike
 
     t0 = time.perf_counter()
     clf = train_classifier(data, ckpt_dir, progress=progress)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from mogo_export import evaluation as E
-from mogo_export.cli import main
-from mogo_export.models import evaluator as M
+from mogo_eval import protocol as E
+from mogo_eval.cli import main
+from mogo_eval.judges import evaluator as M
 
 D = 16
 

@@ -1,79 +1,98 @@
 """Measure text condition alignment (TCA): action accuracy on hand-written paraphrases, with and without TCA.
 
-    python -m mogo_export.tca_eval --bundle bundles/base --data data/procedural --checkpoints checkpoints/base
+    python -m mogo_eval.tca_eval --bundle bundles/base --data data/procedural --checkpoints checkpoints/base
 
-For every paraphrase of mogo_export/data/paraphrases.py (labelled with its action family) and every seed, a motion
-is generated from the prompt as typed ("raw") and from each TCA method's conditioning (see mogo_runtime.tca):
-  normalize       the normalised wording only
-  nearest         the nearest training caption per clause (the runtime's default method)
+For every paraphrase of mogo_eval/paraphrases.py (labelled with its action family) and every seed, a motion
+is generated from the prompt as typed ("raw") and from what each variant of the offline aligner
+(mogo_runtime.tca) conditions on:
+  normalize       the normalised wording alone, no retrieval (an ablation: what retrieval adds)
+  nearest         the nearest training caption per clause (what the runtime does)
   nearest-nolex   the same without the left/right, forward/backward re-ranking
-  blend           a similarity-weighted mean of the top-k caption embeddings
-The quality classifier (mogo_export.quality, trained once on the dataset's training split) judges each motion's
-family. Every method uses the same seeds, so differences are paired. Accuracy is reported per paraphrase set
-(dev: the set the wording lexicon was tuned on; heldout: written after, never tuned on) with a 95% interval
-(bootstrap over prompts). `--reference` adds in-distribution captions from the test split as a ceiling.
+(`blend`, a similarity-weighted mean of caption embeddings, measured equal to `nearest` and was removed from
+the runtime: docs/tca.md.) The quality classifier (mogo_eval.quality, trained once on the dataset's training
+split) judges each motion's family. Every method uses the same seeds, so differences are paired. Accuracy is
+reported per paraphrase set (dev: the set the wording lexicon was tuned on; heldout: written after, never tuned
+on) with a 95% interval (bootstrap over prompts). `--reference` adds in-distribution captions from the test split
+as a ceiling.
 
-Generation runs on the bundle with onnxruntime (`--variant fp32|int8`) or, with `--torch`, on the checkpoints.
-A bundle without a caption index gets one built from --data's training captions (with a note).
+Generation runs on the bundle through the runtime (`--variant fp32|int8`) or, with `--torch`, on the checkpoints
+(mogo_eval.features); retrieval embeds prompts with the same text encoder. A bundle without a caption index gets
+one built from --data's training captions (with a note).
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
 
-from mogo_runtime.decoding import collect_tokens, decode_tokens, generate_tokens, make_rngs
 from mogo_runtime.features import load_mean_std
-from mogo_runtime.sampling import SamplingConfig
-from mogo_runtime.tca import CaptionIndex, OfflineAligner, apply_alignment
+from mogo_runtime.tca import CaptionIndex, OfflineAligner, sentence
 
-from .data.paraphrases import SETS
+from .paraphrases import SETS
 
-METHODS = {"raw": None, "normalize": {"method": "normalize"}, "nearest": {"method": "nearest"},
-           "nearest-nolex": {"method": "nearest", "lexical_weight": 0.0}, "blend": {"method": "blend"}}
+METHODS = {"raw": "the prompt as typed", "normalize": "the normalised wording, no retrieval",
+           "nearest": "the nearest training caption per clause (the runtime)",
+           "nearest-nolex": "nearest without the direction-word re-ranking"}
 
 
-def _backend_and_index(args):
-    """(backend, caption index, where the index came from, max_tokens, sampling defaults)."""
+def aligned_texts(method: str, texts: list[str], index: CaptionIndex, encode) -> list[str]:
+    """What `method` conditions the model on, per prompt (always text: the runtime encodes it)."""
+    if method == "raw":
+        return list(texts)
+    aligner = OfflineAligner(index=index, text_session=encode,
+                             lexical_weight=0.0 if method == "nearest-nolex" else None)
+    if method == "normalize":   # as the runtime words it, before retrieval; nothing recognised: as typed
+        return [sentence(aligner.normalizer.normalize(t)) or t for t in texts]
+    return [p.text for p in aligner.align_batch(texts)]
+
+
+def _setup(args):
+    """(features generator, prompt encoder, caption index, where the index came from, sampling)."""
     from mogo_runtime import Bundle
-    from mogo_runtime.generator import OrtBackend
     from mogo_runtime.tca import load_bundle_index
 
+    from .features import bundle_features, torch_features
+
     bundle = Bundle.load(args.bundle) if args.bundle else None
-    index, source, defaults = None, None, {}
-    if bundle is not None:
-        index, _ = load_bundle_index(bundle)
-        source = f"{args.bundle}/{bundle.manifest['tca']['file']}" if index is not None else None
-        defaults = dict(bundle.manifest.get("sampling_defaults") or {})
+    index, source = (load_bundle_index(bundle)[0], None) if bundle is not None else (None, None)
+    if index is not None:
+        source = f"{args.bundle}/{bundle.manifest.tca['file']}"
     if args.torch:
-        from .export.bundle import SAMPLING_DEFAULTS
-        from .generate import TorchGenerator
+        from mogo_export.export.bundle import SAMPLING_DEFAULTS
+        from mogo_export.generate import TorchGenerator
 
         gen = TorchGenerator.from_checkpoints(args.checkpoints)
-        backend, max_tokens = gen.backend, gen.max_tokens
-        defaults = defaults or SAMPLING_DEFAULTS.to_dict()
+        sampling = bundle.manifest.sampling_defaults if bundle is not None else SAMPLING_DEFAULTS
+        encode, encoder = gen.backend.encode_text, gen.backend.text_encoder.name
+        make = lambda s: torch_features(gen, s)  # noqa: E731
     else:
-        backend = OrtBackend(bundle, args.variant, threads=args.threads)
-        max_tokens = int(bundle.manifest["model"]["max_tokens"])
+        from mogo_runtime.text import TextEncoderSession
+
+        te = bundle.manifest.text_encoder
+        session = TextEncoderSession(bundle.graph_file("text_encoder", args.variant), bundle.file(te.tokenizer),
+                                     threads=args.threads)
+        sampling, encode, encoder = bundle.manifest.sampling_defaults, session.encode, te.name
+        make = lambda s: bundle_features(args.bundle, args.variant, s, args.threads)  # noqa: E731
+    if args.temperature is not None:
+        sampling = dataclasses.replace(sampling, temperature=args.temperature)
     if index is None:
-        from .export.caption_index import training_captions
+        from mogo_export.export.caption_index import training_captions
 
         captions, labels = training_captions(args.data)
         print(f"note: {args.bundle or 'no bundle'}: no caption index; embedding the {len(captions)} training "
               f"captions of {args.data} with the generator's text encoder", file=sys.stderr)
-        name = getattr(getattr(backend, "text_encoder", None), "name", "") or bundle.manifest["text_encoder"]["name"]
-        index = CaptionIndex(captions, backend.encode_text(captions), labels, name)
+        index = CaptionIndex(captions, encode(captions), labels, encoder)
         source = f"built from {args.data}"
-    return backend, index, source, max_tokens, defaults
+    return make(sampling), encode, index, source, sampling
 
 
 def _reference_cases(data: Path, families: list[str], per_family: int) -> list[tuple[str, str]]:
-    from .data.dataset import MotionDataset
+    from mogo_export.data.dataset import MotionDataset
     from .quality import single_family
 
     out, count = [], {}
@@ -102,11 +121,8 @@ def evaluate(args) -> dict:
     t0 = time.perf_counter()
     clf_path = train_classifier(args.data, args.checkpoints, progress=False)
     model, families = load_classifier(clf_path)
-    backend, index, source, max_tokens, defaults = _backend_and_index(args)
-    mean, std = load_mean_std(args.data, backend.dims.feature_dim)
-    sampling = SamplingConfig(temperature=defaults.get("temperature", 1.0) if args.temperature is None
-                              else args.temperature, top_k=defaults.get("top_k"), top_p=defaults.get("top_p"),
-                              guidance=defaults.get("guidance", 1.0))
+    features, encode, index, source, sampling = _setup(args)
+    mean, std = load_mean_std(args.data)
     cases = [(name, text, fam) for name in args.sets for text, fam in SETS[name]]
     unknown = sorted({fam for _, _, fam in cases} - set(families))
     if unknown:   # a small dataset may lack a family: its paraphrases cannot be judged
@@ -128,29 +144,16 @@ def evaluate(args) -> dict:
     raw_correct = None
     for method in methods:
         tm = time.perf_counter()
-        texts = [t for _, t, _ in cases]
-        if METHODS[method] is None:
-            aligned_text = texts
-            with torch.no_grad():
-                emb = backend.encode_text(texts)
-        else:
-            aligner = OfflineAligner(index=index, text_session=backend, **METHODS[method])
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                prompts = aligner.align_batch(texts)
-            aligned_text = [p.text for p in prompts]
-            with torch.no_grad():
-                emb = apply_alignment(prompts, backend.encode_text)
+        with torch.no_grad():
+            aligned_text = aligned_texts(method, [t for _, t, _ in cases], index, encode)
         correct = np.zeros((len(cases), len(seeds)))
         preds: list[list[str]] = [[] for _ in cases]
         for si, seed in enumerate(seeds):
             for b in range(0, len(cases), args.batch):
                 rows = list(range(b, min(b + args.batch, len(cases))))
-                rngs = make_rngs([seed * 100_003 + r for r in rows], len(rows))
-                with torch.no_grad():
-                    steps = generate_tokens(backend, emb[rows], sampling, rngs, max_tokens)
-                    tokens = collect_tokens(steps, len(rows), backend.dims.num_levels)
-                    feats = decode_tokens(backend, tokens)
+                with torch.no_grad():   # row r's seed is the same for every method: differences are paired
+                    feats = features.generate([aligned_text[r] for r in rows], [seed * 100_003 + r for r in rows],
+                                              None)
                 clips = [((f - mean) / std).astype(np.float32) if len(f) else
                          np.zeros((4, len(mean)), np.float32) for f in feats]
                 p, _ = classify(model, families, clips)

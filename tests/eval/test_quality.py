@@ -5,10 +5,10 @@ import shutil
 import numpy as np
 import pytest
 
-from mogo_export.cli import main
+from mogo_eval.cli import main
+from mogo_eval.features import FeatureGenerator
+from mogo_eval.quality import classify, generation_quality, held_out_cases, load_classifier, train_classifier
 from mogo_export.data.dataset import MotionDataset
-from mogo_export.generate import FeatureGenerator
-from mogo_export.quality import classify, generation_quality, held_out_cases, load_classifier, train_classifier
 
 
 @pytest.fixture(scope="module")

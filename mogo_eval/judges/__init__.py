@@ -1,0 +1,1 @@
+"""The judge models evaluation trains and trusts: an action classifier and text-motion evaluators."""

@@ -1,0 +1,412 @@
+"""The bundle manifest (`manifest.json`), typed: the one home of the contract that docs/bundle.md describes.
+
+The exporter (and the tests' hand-built bundle) build a `Manifest` and write `to_dict()`; everything else reads
+one through `Manifest.parse`, which checks every field it reads (type, range, agreement between sections) and
+names the file and the field when one is wrong. Nothing else reads manifest.json.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, fields
+from pathlib import PurePosixPath
+
+import numpy as np
+
+from .features import FeatureLayout
+from .sampling import SamplingConfig
+from .skeleton import SKELETONS, Skeleton
+
+SCHEMA = "mogo-bundle"
+# 2: cache-name templates; `normalization` always an object; text_encoder numbers stored as numbers.
+SCHEMA_VERSION = 2
+GRAPHS = ("text_encoder", "step", "lookup", "decoder")
+DTYPES = {"float32": "tensor(float)", "int64": "tensor(int64)", "float16": "tensor(float16)"}  # -> onnxruntime
+NORMALIZATION = "decoder-output-denormalised"   # decoder.onnx multiplies by Std and adds Mean itself
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+class BundleError(ValueError):
+    """A bundle that cannot be used: the message names the file and the field."""
+
+
+class _Fields:
+    """Typed reads from one JSON object; every failure names the file and the dotted field path."""
+
+    def __init__(self, obj, where: str, path: str = ""):
+        self.where, self.path = where, path
+        if not isinstance(obj, dict):
+            raise BundleError(f"{where}: {self._name(None) or 'the manifest'} must be a JSON object, "
+                              f"got {_kind(obj)}")
+        self.obj = obj
+
+    def _name(self, key) -> str:
+        return ".".join(p for p in (self.path, key) if p)
+
+    def fail(self, key, message: str):
+        raise BundleError(f"{self.where}: field {self._name(key)}: {message}")
+
+    def get(self, key, default=...):
+        if key not in self.obj:
+            if default is ...:
+                self.fail(key, "missing")
+            return default
+        return self.obj[key]
+
+    def int(self, key, lo: int = 0, hi: int = 2 ** 31, default=...) -> int:
+        v = self.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            self.fail(key, f"expected an integer in [{lo}, {hi}], got {v!r}")
+        return v
+
+    def num(self, key, lo: float, hi: float, default=...) -> float:
+        v = self.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo < v <= hi:
+            self.fail(key, f"expected a number in ({lo:g}, {hi:g}], got {v!r}")
+        return float(v)
+
+    def str(self, key, default=...) -> str:
+        v = self.get(key, default)
+        if not isinstance(v, str) or not v:
+            self.fail(key, f"expected a non-empty string, got {v!r}")
+        return v
+
+    def sub(self, key, default=...) -> "_Fields":
+        return _Fields(self.get(key, default), self.where, self._name(key))
+
+    def list(self, key) -> list:
+        v = self.get(key)
+        if not isinstance(v, list):
+            self.fail(key, f"expected a list, got {_kind(v)}")
+        return v
+
+
+def _kind(v) -> str:
+    return "null" if v is None else type(v).__name__
+
+
+@dataclass(frozen=True)
+class ModelDims:
+    """The manifest's `model` section: the network's sizes, as the loop and a consumer need them."""
+
+    num_levels: int          # L: residual quantizer levels = parallel streams of the transformer
+    codebook_size: int       # K: codes per level; END = K, BOS = K + 1, PAD = K + 2
+    n_layers: int            # transformer layers: one cached key and value each
+    n_heads: int
+    head_dim: int
+    text_dim: int            # width of the text embedding the step graph takes
+    max_rel_dist: int        # relative positions are clipped here (Transformer-XL)
+    downsample: int          # motion frames per token
+    fps: float
+    receptive_field: int     # tokens of history (besides its own) that a decoded frame depends on
+    feature_dim: int         # 263 for HumanML3D features
+    latent_dim: int          # width of the decoder's input
+    max_tokens: int          # the longest motion the model was trained for, in tokens
+
+    @property
+    def end_id(self) -> int:
+        return self.codebook_size
+
+    @property
+    def bos_id(self) -> int:
+        return self.codebook_size + 1
+
+    @property
+    def pad_id(self) -> int:
+        return self.codebook_size + 2
+
+    @property
+    def max_seconds(self) -> float:
+        return self.max_tokens * self.downsample / self.fps
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "d_model": self.n_heads * self.head_dim, "end_id": self.end_id,
+                "bos_id": self.bos_id, "pad_id": self.pad_id}
+
+    @classmethod
+    def parse(cls, f: _Fields) -> "ModelDims":
+        dims = cls(**{x.name: f.num(x.name, 0, 1000) if x.name == "fps" else
+                      f.int(x.name, lo=0 if x.name == "receptive_field" else 1) for x in fields(cls)})
+        for key, want in (("end_id", dims.end_id), ("bos_id", dims.bos_id), ("pad_id", dims.pad_id),
+                          ("d_model", dims.n_heads * dims.head_dim)):
+            if f.get(key, want) != want:
+                f.fail(key, f"is {f.get(key)!r}, the other sizes imply {want}")
+        return dims
+
+
+@dataclass(frozen=True)
+class TensorSpec:
+    name: str
+    dtype: str                       # a key of DTYPES
+    shape: tuple                     # ints, or strings for symbolic dims
+
+    @classmethod
+    def parse(cls, f: _Fields) -> "TensorSpec":
+        dtype, shape = f.str("dtype"), f.list("shape")
+        if dtype not in DTYPES:
+            f.fail("dtype", f"expected one of {sorted(DTYPES)}, got {dtype!r}")
+        if len(shape) > 8 or not all(isinstance(d, str) or (isinstance(d, int) and not isinstance(d, bool)
+                                                              and d >= 0) for d in shape):
+            f.fail("shape", f"expected at most 8 dims, each a name or an integer >= 0, got {shape!r}")
+        return cls(f.str("name"), dtype, tuple(shape))
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "dtype": self.dtype, "shape": list(self.shape)}
+
+
+@dataclass(frozen=True)
+class GraphSpec:
+    inputs: tuple[TensorSpec, ...]
+    outputs: tuple[TensorSpec, ...]
+
+    @classmethod
+    def parse(cls, f: _Fields) -> "GraphSpec":
+        io = {}
+        for kind in ("inputs", "outputs"):
+            specs = [TensorSpec.parse(_Fields(d, f.where, f"{f.path}.{kind}[{i}]")) for i, d in enumerate(f.list(kind))]
+            names = [s.name for s in specs]
+            if not specs or len(set(names)) != len(names):
+                f.fail(kind, f"expected a non-empty list of distinct names, got {names}")
+            io[kind] = tuple(specs)
+        return cls(**io)
+
+    def to_dict(self) -> dict:
+        return {"inputs": [s.to_dict() for s in self.inputs], "outputs": [s.to_dict() for s in self.outputs]}
+
+
+@dataclass(frozen=True)
+class GraphFile:
+    """One graph of one variant: its file, and the quantization applied (None for fp32)."""
+
+    file: str
+    quantization: dict | None = None
+
+    @property
+    def quantized(self) -> bool:
+        return bool(self.quantization)
+
+
+@dataclass(frozen=True)
+class CacheNames:
+    """I/O name templates of the step graph's KV cache (onnxruntime-genai style): `present.*` outputs of one
+    step are fed back as the `past_key_values.*` inputs of the next, layer by layer, key then value."""
+
+    past: str = "past_key_values.{layer}.{kind}"
+    present: str = "present.{layer}.{kind}"
+
+    def names(self, template: str, n_layers: int) -> list[str]:
+        return [template.format(layer=i, kind=kind) for i in range(n_layers) for kind in ("key", "value")]
+
+
+@dataclass(frozen=True)
+class TextEncoderSpec:
+    name: str
+    tokenizer: str                   # the bundle file holding the tokenizer (HuggingFace `tokenizers` JSON)
+    max_length: int                  # tokens incl. special tokens; longer prompts are cut
+    pooling: str = "mean"
+
+
+@dataclass(frozen=True)
+class Normalization:
+    mean: tuple[float, ...]          # (feature_dim,) listed for reference: the decoder applies them itself
+    std: tuple[float, ...]
+    mode: str = NORMALIZATION
+
+
+@dataclass(frozen=True)
+class Manifest:
+    model: ModelDims
+    skeleton: Skeleton
+    normalization: Normalization
+    text_encoder: TextEncoderSpec
+    sampling_defaults: SamplingConfig
+    graphs: dict[str, GraphSpec]
+    variants: dict[str, dict[str, GraphFile]]
+    files: dict[str, tuple[int, str]]           # name -> (bytes, sha256)
+    cache: CacheNames = CacheNames()
+    producer: dict | None = None                # informative only: who wrote the bundle, from what
+    tca: dict | None = None                     # the caption index section, read by mogo_runtime.tca
+
+    @property
+    def layout(self) -> FeatureLayout:
+        return FeatureLayout.for_skeleton(self.skeleton)
+
+    @property
+    def past_names(self) -> list[str]:
+        return self.cache.names(self.cache.past, self.model.n_layers)
+
+    @property
+    def present_names(self) -> list[str]:
+        return self.cache.names(self.cache.present, self.model.n_layers)
+
+    def graph_file(self, graph: str, variant: str) -> GraphFile:
+        if variant not in self.variants:
+            raise BundleError(f"unknown variant {variant!r}; this bundle has {', '.join(self.variants)}")
+        return self.variants[variant][graph]
+
+    def to_dict(self) -> dict:
+        return {
+            "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "producer": self.producer or {},
+            "model": self.model.to_dict(), "skeleton": self.skeleton.to_dict(),
+            "features": self.layout.to_dict(),
+            "normalization": {"mode": self.normalization.mode, "mean": list(self.normalization.mean),
+                              "std": list(self.normalization.std)},
+            "text_encoder": asdict(self.text_encoder), "sampling_defaults": self.sampling_defaults.to_dict(),
+            "cache": asdict(self.cache), **({"tca": self.tca} if self.tca else {}),
+            "graphs": {g: s.to_dict() for g, s in self.graphs.items()},
+            "variants": {v: {g: asdict(e) for g, e in gs.items()} for v, gs in self.variants.items()},
+            "files": {n: {"bytes": b, "sha256": h} for n, (b, h) in self.files.items()},
+        }
+
+    @classmethod
+    def parse(cls, data, where: str) -> "Manifest":
+        """Check and type a manifest read from JSON; `where` (the file) starts every error message."""
+        f = _Fields(data, where)
+        if f.get("schema", None) != SCHEMA:
+            f.fail("schema", f"is {f.get('schema', None)!r}, expected {SCHEMA!r} (not a mogo bundle)")
+        if f.get("schema_version", None) != SCHEMA_VERSION:
+            f.fail("schema_version", f"is {f.get('schema_version', None)!r}; this runtime reads version "
+                                     f"{SCHEMA_VERSION} (re-export the bundle with `mogo-export export`)")
+        producer = f.get("producer", {})
+        if not isinstance(producer, dict):
+            f.fail("producer", f"expected an object, got {_kind(producer)}")
+        model = ModelDims.parse(f.sub("model"))
+        skeleton = _parse_skeleton(f.sub("skeleton"), f.sub("features"), model)
+        return cls(model=model, skeleton=skeleton, normalization=_parse_normalization(f.sub("normalization"), model),
+                   text_encoder=_parse_text_encoder(f.sub("text_encoder")),
+                   sampling_defaults=_parse_sampling(f.sub("sampling_defaults")),
+                   cache=_parse_cache(f.sub("cache")), producer=producer, files=_parse_files(f.sub("files")),
+                   graphs={g: GraphSpec.parse(f.sub("graphs").sub(g)) for g in GRAPHS},
+                   variants=_parse_variants(f.sub("variants")), tca=_parse_tca(f)).checked(where)
+
+    def checked(self, where: str) -> "Manifest":
+        """Agreement between sections: files named by variants are listed, the step graph's I/O is the cache."""
+        for v, graphs in self.variants.items():
+            for g, entry in graphs.items():
+                if entry.file not in self.files:
+                    raise BundleError(f"{where}: field variants.{v}.{g}.file: {entry.file!r} is not in 'files'")
+        for name in (self.text_encoder.tokenizer, *([self.tca["file"]] if self.tca else [])):
+            if name not in self.files:
+                raise BundleError(f"{where}: {name!r} is named by the manifest but not listed in 'files'")
+        step, m = self.graphs["step"], self.model
+        want_in = ["text_embedding", "tokens", *self.past_names]
+        want_out = ["logits", *self.present_names]
+        for kind, specs, want in (("inputs", step.inputs, want_in), ("outputs", step.outputs, want_out)):
+            if [s.name for s in specs] != want:
+                raise BundleError(f"{where}: field graphs.step.{kind}: names are {[s.name for s in specs]}, "
+                                  f"n_layers={m.n_layers} and the cache templates imply {want}")
+        logits = step.outputs[0].shape
+        if len(logits) != 4 or logits[2:] != (m.num_levels, m.codebook_size + 1):
+            raise BundleError(f"{where}: field graphs.step.outputs[0].shape: {list(logits)} should end in "
+                              f"[{m.num_levels}, {m.codebook_size + 1}] (levels, codes + END)")
+        return self
+
+
+def _parse_skeleton(f: _Fields, features: _Fields, model: ModelDims) -> Skeleton:
+    """The skeleton must be one this runtime knows, stored exactly: the joints code relies on its tables."""
+    name = f.str("name")
+    if name not in SKELETONS:
+        f.fail("name", f"unknown skeleton {name!r}; this runtime knows {sorted(SKELETONS)}")
+    skeleton = SKELETONS[name]
+    known = skeleton.to_dict()
+    for key in ("joint_names", "parents"):
+        if f.get(key) != known[key]:
+            f.fail(key, f"differs from the {name!r} skeleton this runtime knows")
+    try:
+        offsets = np.asarray(f.get("offsets"), dtype=np.float64)
+    except (TypeError, ValueError):
+        offsets = None
+    if offsets is None or offsets.shape != skeleton.offsets.shape or not np.allclose(offsets, known["offsets"],
+                                                                                    atol=1e-6):
+        f.fail("offsets", f"differ from the {name!r} skeleton this runtime knows")
+    try:
+        FeatureLayout.from_dict(features.obj)
+    except ValueError as e:
+        features.fail("", str(e))
+    if FeatureLayout.for_skeleton(skeleton).dim != model.feature_dim:
+        f.fail("name", f"{name!r} has {FeatureLayout.for_skeleton(skeleton).dim} features per frame, "
+                       f"model.feature_dim is {model.feature_dim}")
+    return skeleton
+
+
+def _parse_normalization(f: _Fields, model: ModelDims) -> Normalization:
+    if f.str("mode") != NORMALIZATION:
+        f.fail("mode", f"expected {NORMALIZATION!r}, got {f.get('mode')!r}")
+    stats = {}
+    for key in ("mean", "std"):
+        v = f.list(key)
+        if len(v) != model.feature_dim or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                  and math.isfinite(x) for x in v):
+            f.fail(key, f"expected {model.feature_dim} finite numbers")
+        stats[key] = tuple(float(x) for x in v)
+    return Normalization(**stats)
+
+
+def _parse_text_encoder(f: _Fields) -> TextEncoderSpec:
+    return TextEncoderSpec(name=f.str("name"), tokenizer=f.str("tokenizer"),
+                           max_length=f.int("max_length", 2, 65536), pooling=f.str("pooling", "mean"))
+
+
+def _parse_sampling(f: _Fields) -> SamplingConfig:
+    unknown = set(f.obj) - {x.name for x in fields(SamplingConfig)}
+    if unknown:
+        f.fail(sorted(unknown)[0], "unknown sampling setting")
+    try:
+        return SamplingConfig(**f.obj)
+    except (TypeError, ValueError) as e:
+        raise BundleError(f"{f.where}: field {f.path}: {e}") from None
+
+
+def _parse_cache(f: _Fields) -> CacheNames:
+    cache = CacheNames(past=f.str("past"), present=f.str("present"))
+    for key in ("past", "present"):
+        template = getattr(cache, key)
+        try:
+            names = cache.names(template, 2)
+        except (KeyError, IndexError, ValueError):
+            names = []
+        if len(set(names)) != 4 or template.format(layer=0, kind="key") == template:
+            f.fail(key, f"a name template with {{layer}} and {{kind}} fields, got {template!r}")
+    return cache
+
+
+def _parse_files(f: _Fields) -> dict[str, tuple[int, str]]:
+    files = {}
+    for name in f.obj:
+        entry = f.sub(name)
+        p = PurePosixPath(name)
+        # bundle files are plain names inside the bundle folder: no directories, no way out of it
+        if not name or p.name != name or name in (".", "..") or "\\" in name or "\0" in name:
+            f.fail(name, "a bundle file must be a plain file name inside the bundle folder")
+        digest = entry.str("sha256")
+        if not _SHA256.fullmatch(digest):
+            entry.fail("sha256", f"expected 64 lowercase hex digits, got {digest!r}")
+        files[name] = (entry.int("bytes", 0, 2 ** 40), digest)
+    if not files:
+        f.fail("", "lists no files")
+    return files
+
+
+def _parse_variants(f: _Fields) -> dict[str, dict[str, GraphFile]]:
+    if "fp32" not in f.obj:
+        f.fail("fp32", "missing: every bundle has the fp32 variant")
+    variants = {}
+    for v in f.obj:
+        graphs = f.sub(v)
+        entries = {}
+        for g in GRAPHS:
+            e = graphs.sub(g)
+            q = e.get("quantization", None)
+            if q is not None and not isinstance(q, dict):
+                e.fail("quantization", f"expected an object or null, got {_kind(q)}")
+            entries[g] = GraphFile(file=e.str("file"), quantization=q or None)
+        variants[v] = entries
+    return variants
+
+
+def _parse_tca(f: _Fields) -> dict | None:
+    if f.get("tca", None) is None:
+        return None
+    tca = f.sub("tca")
+    tca.str("file")
+    return tca.obj

@@ -1,0 +1,175 @@
+"""The offline aligner: normalise the wording, split it into clauses, and condition on the nearest training
+caption of each clause, with the bundle's caption index and text encoder only (no generative model).
+
+    aligner = OfflineAligner(bundle, text_session)
+    aligner.align("guy starts jogging real quick, then sits").text   # 'a person jogs forward slowly and then ...'
+
+Each clause, as "a person <clause>.", is embedded by the bundle's text encoder and compared (cosine) with the
+single-action captions of the index; the best `CANDIDATES` are re-ranked by agreement on direction words
+(left/right, forward/backward; `lexical_weight`) and the best one's verb phrase replaces the clause.
+"""
+from __future__ import annotations
+
+import re
+import warnings
+
+import numpy as np
+
+from .base import AlignedPrompt, Aligner
+from .index import CaptionIndex, load_bundle_index
+from .lexicon import DIRECTIONS, OPPOSITES
+from .wording import WordingNormalizer, caption_verbs, sentence, strip_subject
+
+# The manifest's `tca` section may set these; older manifests also carry `method`, `top_k` and `temperature`,
+# read by nothing now (docs/tca.md: every bundle aligns with "nearest").
+DEFAULTS = {"lexical_weight": 0.05, "split_margin": 0.02}
+CANDIDATES = 32   # nearest captions re-ranked by direction words
+NEIGHBOURS = 3    # of them, kept per clause in `details["neighbours"]`
+# Bare "and"s of one clause tried as split points (the first ones). Each try embeds the clause's two parts, so
+# trying all of them made a long run-on prompt quadratic: 36.7 s for 3,000 characters (docs/tca.md).
+MAX_SPLITS = 8
+
+
+class _Encoder:
+    """Anything that embeds prompts: a TextEncoderSession (.encode), an OrtBackend (.encode_text), a callable."""
+
+    def __init__(self, session):
+        if hasattr(session, "encode"):
+            self.fn = session.encode
+        elif hasattr(session, "encode_text"):
+            self.fn = session.encode_text
+        elif callable(session):
+            self.fn = session
+        else:
+            raise TypeError(f"text_session must have .encode(list[str]) or .encode_text(list[str]); got "
+                            f"{type(session).__name__}")
+
+    def __call__(self, texts: list[str]) -> np.ndarray:
+        return np.asarray(self.fn(list(texts)), np.float32)
+
+
+def _query_directions(clause: str) -> set[str]:
+    return set(clause.replace("backwards", "backward").split()) & DIRECTIONS
+
+
+def _caption_directions(caption: str) -> set[str]:
+    return set(re.findall(r"[a-z]+", caption.lower().replace("backwards", "backward"))) & DIRECTIONS
+
+
+def _agreement(query: set[str], caption: set[str]) -> float:
+    """+1 per direction word both share, -2 per direction word of the caption that contradicts the query."""
+    conflict = sum(1 for w in caption & OPPOSITES.keys() if OPPOSITES[w] in query and w not in query)
+    return len(query & caption) - 2.0 * conflict
+
+
+class OfflineAligner(Aligner):
+    """Normalise, split, retrieve: TCA with the bundle's caption index and text encoder, no generative model.
+
+    bundle: a mogo_runtime.Bundle (or None, with `index=` or for wording only); text_session: what embeds
+    prompts (the bundle's TextEncoderSession or OrtBackend, or a callable). lexical_weight / split_margin
+    default to the manifest's `tca` section, else DEFAULTS. Without a caption index the wording is only
+    normalised (method "normalize"), with a warning when the bundle lacks one.
+    """
+
+    def __init__(self, bundle=None, text_session=None, lexical_weight: float | None = None,
+                 split_margin: float | None = None, index: CaptionIndex | None = None):
+        section: dict = {}
+        if index is None and bundle is not None:
+            index, section = load_bundle_index(bundle)
+        self.index = index
+        cfg = {**DEFAULTS, **{k: section[k] for k in DEFAULTS if k in section}}
+        self.lexical_weight = float(cfg["lexical_weight"] if lexical_weight is None else lexical_weight)
+        self.split_margin = float(cfg["split_margin"] if split_margin is None else split_margin)
+        self.encode = _Encoder(text_session) if text_session is not None else None
+        self._warn_no_index = bundle is not None and index is None
+        vocab = verbs = None
+        if index is not None:
+            if self.encode is None:
+                raise ValueError("OfflineAligner with a caption index needs text_session to embed prompts")
+            vocab = {w for c in index.captions for w in re.findall(r"[a-z]+", c.lower())}
+            verbs = caption_verbs(index.captions)
+            single = [not (lb or "").startswith("seq:") for lb in (index.labels or [""] * len(index))]
+            self.single_mask = np.array(single, bool)     # a clause is one action: never match a sequence
+            if not self.single_mask.any():
+                self.single_mask[:] = True
+            self._directions: dict[int, set[str]] = {}    # caption row -> its direction words
+        self.normalizer = WordingNormalizer(vocab, verbs)
+
+    @property
+    def has_index(self) -> bool:
+        return self.index is not None
+
+    def align(self, text: str) -> AlignedPrompt:
+        clauses = self.normalizer.normalize(text)
+        if not clauses:   # nothing recognisable: condition on the prompt as given
+            return AlignedPrompt(text, method="none", details={"reason": "no motion words found", "clauses": []})
+        if self.index is None:
+            if self._warn_no_index:
+                warnings.warn("this bundle has no caption index (manifest section 'tca'): TCA only normalises the "
+                              "wording; re-export the bundle with a caption index for retrieval", stacklevel=3)
+                self._warn_no_index = False
+            normalized = sentence(clauses)
+            return AlignedPrompt(normalized, method="normalize", details={"clauses": clauses, "normalized": normalized})
+        clauses = self._refine_split(clauses)
+        hits = self._retrieve(clauses)
+        clauses, hits = self._merge_repeats(clauses, hits)
+        details = {"clauses": clauses, "normalized": sentence(clauses),
+                   "neighbours": [[(self.index.captions[i], round(float(s), 4)) for i, s in h] for h in hits]}
+        return AlignedPrompt(sentence([strip_subject(self.index.captions[h[0][0]]) for h in hits]),
+                             method="nearest", details=details)
+
+    # ---- retrieval
+    def _scores(self, phrases: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Best re-ranked hits for each phrase: (indices (P, k), cosine (P, k), score (P, k)), best first."""
+        q = self.encode([sentence([p]) for p in phrases])
+        idx, cos = self.index.search(q, CANDIDATES, self.single_mask)
+        score = cos.copy()
+        if self.lexical_weight:
+            for r, p in enumerate(phrases):
+                words = _query_directions(p)
+                score[r] += self.lexical_weight * np.array([_agreement(words, self._caption_words(i))
+                                                            for i in idx[r]])
+        order = np.argsort(-score, axis=1, kind="stable")[:, :NEIGHBOURS]
+        take = lambda a: np.take_along_axis(a, order, axis=1)  # noqa: E731
+        return take(idx), take(cos), take(score)
+
+    def _caption_words(self, i: int) -> set[str]:
+        if i not in self._directions:
+            self._directions[i] = _caption_directions(self.index.captions[i])
+        return self._directions[i]
+
+    def _retrieve(self, clauses: list[str]) -> list[list[tuple[int, float]]]:
+        idx, cos, _ = self._scores(clauses)
+        return [list(zip(i.tolist(), c.tolist())) for i, c in zip(idx, cos)]
+
+    def _merge_repeats(self, clauses, hits):
+        """Neighbouring clauses that retrieve the same action family describe one action: keep the closer one."""
+        if self.index.labels is None:
+            return clauses, hits
+        out_c, out_h = [], []
+        for c, h in zip(clauses, hits):
+            label = self.index.labels[h[0][0]]
+            if out_h and label is not None and self.index.labels[out_h[-1][0][0]] == label:
+                if h[0][1] > out_h[-1][0][1]:
+                    out_c[-1], out_h[-1] = c, h
+                continue
+            out_c.append(c)
+            out_h.append(h)
+        return out_c, out_h
+
+    def _refine_split(self, clauses: list[str]) -> list[str]:
+        """Split a clause at a bare "and" when its parts each match the captions better than the whole does."""
+        out: list[str] = []
+        for c in clauses:
+            words = c.split()
+            cuts = [i for i, w in enumerate(words) if w == "and" and 0 < i < len(words) - 1
+                    and self.normalizer.is_verb(words[i + 1])][:MAX_SPLITS]
+            best_parts, best = [c], None
+            for cut in cuts:
+                parts = [" ".join(words[:cut]), " ".join(words[cut + 1:])]
+                _, _, score = self._scores([c] + parts)
+                whole, split = float(score[0, 0]), float(score[1:, 0].mean())
+                if split > whole + self.split_margin and (best is None or split > best):
+                    best_parts, best = parts, split
+            out += best_parts
+        return out
