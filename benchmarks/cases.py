@@ -269,7 +269,7 @@ def case_torch(args) -> dict:
     import torch
 
     import mogo_runtime.decoding as decoding
-    import mogo_export.generate as tgen
+    import mogo_export.reference as tgen
 
     torch.set_num_threads(args.threads)
     manifest = read_manifest(args.bundle)

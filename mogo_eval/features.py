@@ -11,7 +11,7 @@ import numpy as np
 from mogo_runtime.sampling import SamplingConfig
 
 if TYPE_CHECKING:
-    from mogo_export.generate import TorchGenerator
+    from mogo_export.reference import TorchGenerator
 
 
 @dataclass

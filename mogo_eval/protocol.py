@@ -229,7 +229,7 @@ def _by_length(generate, downsample: int, length: str, chunk: int):
 
 def torch_source(ckpt_dir: Path, sampling: SamplingConfig, length: str = "model", chunk: int = 32,
                  name: str = "MOGO (torch)") -> MotionSource:
-    from mogo_export.generate import TorchGenerator
+    from mogo_export.reference import TorchGenerator
 
     from .features import torch_features
 

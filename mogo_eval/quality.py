@@ -22,7 +22,7 @@ from mogo_runtime.sampling import SamplingConfig
 
 from mogo_export.checkpoint import build_from_checkpoint, save_checkpoint
 from mogo_export.data.dataset import MotionDataset
-from mogo_export.generate import TorchGenerator
+from mogo_export.reference import TorchGenerator
 from mogo_export.models.vq import MoSAVQ, VQConfig
 from mogo_export.train import evaluate_vq
 

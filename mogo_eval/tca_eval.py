@@ -64,7 +64,7 @@ def _setup(args):
         source = f"{args.bundle}/{bundle.manifest.tca['file']}"
     if args.torch:
         from mogo_export.export.bundle import SAMPLING_DEFAULTS
-        from mogo_export.generate import TorchGenerator
+        from mogo_export.reference import TorchGenerator
 
         gen = TorchGenerator.from_checkpoints(args.checkpoints)
         sampling = bundle.manifest.sampling_defaults if bundle is not None else SAMPLING_DEFAULTS

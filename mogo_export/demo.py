@@ -14,6 +14,8 @@ import argparse
 import time
 from pathlib import Path
 
+from .presets import CPU_NAMES, DEFAULT  # no torch: a run that only generates never loads it
+
 PROMPTS = (
     "a person walks forward and then jumps",
     "a person waves with the right hand",
@@ -24,7 +26,8 @@ PROMPTS = (
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", choices=["tiny", "base"], default="base")
+    ap.add_argument("--preset", choices=CPU_NAMES, default=DEFAULT,
+                    help="a preset that trains on a CPU (mogo_export/presets.py)")
     ap.add_argument("--data", type=Path, default=Path("data/procedural"))
     ap.add_argument("--out", type=Path, default=Path("outputs/demo"))
     ap.add_argument("--clips", type=int, default=2000)

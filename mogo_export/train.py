@@ -8,9 +8,7 @@ resumes from its checkpoint after an interruption; a finished phase is skipped o
 """
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +16,7 @@ import torch
 from tqdm import tqdm
 
 from mogo_runtime.features import recover_from_ric
+from mogo_runtime.files import write_atomic
 from mogo_runtime.skeleton import get_skeleton
 
 from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
@@ -25,34 +24,7 @@ from .data.dataset import MotionDataset
 from .models import transformer as tmodel
 from .models import vq as vqmodel
 from .models.text_encoder import CachedTextEncoder, get_text_encoder
-
-
-@dataclass
-class Schedule:
-    steps: int            # optimiser steps
-    batch_size: int
-    lr: float
-    warmup: int = 200
-    val_every: int = 500
-    ckpt_every: int = 500
-    window: int = 64      # VQ only: frames per training crop
-
-    def lr_at(self, step: int) -> float:
-        if step < self.warmup:
-            return self.lr * (step + 1) / self.warmup
-        progress = (step - self.warmup) / max(1, self.steps - self.warmup)
-        return self.lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
-
-
-# Budgets per preset, sized so `base` trains both models on 2 CPU cores within the time in the README.
-SCHEDULES = {
-    "tiny": {"vq": Schedule(steps=60, batch_size=8, lr=1e-3, warmup=5, val_every=30, ckpt_every=30, window=16),
-             "transformer": Schedule(steps=60, batch_size=8, lr=1e-3, warmup=5, val_every=30, ckpt_every=30)},
-    "base": {"vq": Schedule(steps=2000, batch_size=32, lr=2e-3, window=64),
-             "transformer": Schedule(steps=1300, batch_size=32, lr=5e-4, val_every=250, ckpt_every=250)},
-    "paper": {"vq": Schedule(steps=100_000, batch_size=256, lr=2e-4, window=64, val_every=2000, ckpt_every=2000),
-              "transformer": Schedule(steps=100_000, batch_size=256, lr=2e-4, val_every=2000, ckpt_every=2000)},
-}
+from .presets import DEFAULT, Schedule, get_preset  # Schedule stays importable as train.Schedule
 
 
 def _set_lr(opt, lr):
@@ -112,16 +84,18 @@ def evaluate_vq(vq: vqmodel.MoSAVQ, clips: list[np.ndarray], mean: np.ndarray, s
     return {"mpjpe_mm": float(np.mean(errs)), "l1": float(np.mean(l1))}
 
 
-def train_vq(data: Path, out: Path, preset: str = "base", seed: int = 0, progress: bool = True,
+def train_vq(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progress: bool = True,
              schedule: Schedule | None = None, **overrides) -> Path:
+    """`preset`: a name in mogo_export.presets; `schedule` and `overrides` (VQConfig fields) replace its values."""
     path = out / "vq.pt"
     if _is_done(path, "vq"):
         print(f"vq: {path} is complete, skipping (delete it to retrain)")
         return path
-    sched = schedule or SCHEDULES[preset]["vq"]
+    pset = get_preset(preset)
+    sched = schedule or pset.vq_schedule
     train_ds, val_ds = MotionDataset.load(data, "train"), MotionDataset.load(data, "val")
     num_joints = get_skeleton(train_ds.skeleton).num_joints
-    cfg = vqmodel.preset(preset, input_dim=int(train_ds.mean.shape[0]), **overrides)
+    cfg = pset.vq_config(input_dim=int(train_ds.mean.shape[0]), **overrides)
     mean, std = train_ds.mean, train_ds.std
     clips = [train_ds.normalize(it.features) for it in train_ds.items if len(it.features) >= sched.window]
     val_clips = [val_ds.normalize(it.features) for it in val_ds.items][:64]
@@ -133,6 +107,7 @@ def train_vq(data: Path, out: Path, preset: str = "base", seed: int = 0, progres
     opt = torch.optim.AdamW(vq.parameters(), lr=sched.lr, betas=(0.9, 0.99), weight_decay=0.0)
     start, rng = _resume(path, "vq", vq, opt)
     rng = rng or np.random.default_rng(seed)
+    # the fields checkpoint.load_trained requires (checkpoint.VQ_META), plus the run's own record
     meta = {"mean": mean.tolist(), "std": std.tolist(), "fps": train_ds.fps, "dataset": str(data), "preset": preset,
             "skeleton": train_ds.skeleton}
     bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc="vq", disable=not progress)
@@ -177,10 +152,8 @@ def extract_tokens(data: Path, out: Path, progress: bool = True) -> Path:
             T = len(it.features) // cfg.downsample * cfg.downsample
             x = torch.from_numpy(ds.normalize(it.features[:T]))[None]
             arrays[f"{split}/{it.clip_id}"] = vq.encode(x)[0].numpy().astype(np.int16)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, vq_step=np.array(payload["train"]["step"]), **arrays)
-    tmp.replace(path)
-    return path
+    # a file object, so np.savez does not append ".npz" to the temporary name
+    return write_atomic(path, lambda f: np.savez(f, vq_step=np.array(payload["train"]["step"]), **arrays))
 
 
 def _caption_table(data: Path, out: Path, encoder_name: str):
@@ -224,18 +197,17 @@ def _token_batch(seqs, caps, emb, rng, batch, cfg, by_length=None):
     return torch.from_numpy(text), torch.from_numpy(tin), torch.from_numpy(tgt), torch.from_numpy(lengths)
 
 
-# The tiny preset uses a small random text encoder so that tests export and run whole bundles in seconds.
-TEXT_ENCODERS = {"tiny": "tiny-random-bert"}
-
-
-def train_transformer(data: Path, out: Path, preset: str = "base", seed: int = 0, progress: bool = True,
+def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progress: bool = True,
                       schedule: Schedule | None = None, text_encoder: str | None = None, **overrides) -> Path:
+    """`preset`: a name in mogo_export.presets; `schedule`, `text_encoder` and `overrides` (TransformerConfig
+    fields) replace its values. Levels, codes and text_dim always come from the trained VQ and the encoder."""
     path = out / "transformer.pt"
     if _is_done(path, "transformer"):
         print(f"transformer: {path} is complete, skipping (delete it to retrain)")
         return path
-    sched = schedule or SCHEDULES[preset]["transformer"]
-    text_encoder = text_encoder or TEXT_ENCODERS.get(preset, "all-MiniLM-L6-v2")
+    pset = get_preset(preset)
+    sched = schedule or pset.transformer_schedule
+    text_encoder = text_encoder or pset.text_encoder
     vq_payload = read_checkpoint(out / "vq.pt", "vq")
     vq_cfg = vq_payload["config"]
     table, emb, text_dim = _caption_table(data, out, text_encoder)
@@ -250,8 +222,8 @@ def train_transformer(data: Path, out: Path, preset: str = "base", seed: int = 0
     val_seqs, val_caps = split("val")
     by_length = np.argsort([len(q) for q in seqs], kind="stable")
     max_tokens = max(len(s) for s in seqs)
-    cfg = tmodel.preset(preset, num_levels=vq_cfg["num_levels"], codebook_size=vq_cfg["codebook_size"],
-                        text_dim=text_dim, **overrides)
+    cfg = pset.transformer_config(num_levels=vq_cfg["num_levels"], codebook_size=vq_cfg["codebook_size"],
+                                  text_dim=text_dim, **overrides)
     torch.manual_seed(seed)
     model = tmodel.RQHCTransformer(cfg)
     decay = [p for n, p in model.named_parameters() if p.dim() >= 2]
@@ -261,6 +233,7 @@ def train_transformer(data: Path, out: Path, preset: str = "base", seed: int = 0
     start, rng = _resume(path, "transformer", model, opt)
     rng = rng or np.random.default_rng(seed)
     val_rng = np.random.default_rng(seed + 1)
+    # the fields checkpoint.load_trained requires (checkpoint.TRANSFORMER_META), plus the run's own record
     meta = {"text_encoder": text_encoder, "max_tokens": int(max_tokens * 1.25) + 1, "dataset": str(data),
             "preset": preset, "vq_step": vq_payload["train"]["step"]}
     bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc="transformer", disable=not progress)
@@ -289,7 +262,8 @@ def train_transformer(data: Path, out: Path, preset: str = "base", seed: int = 0
     return path
 
 
-def train_all(data: Path, out: Path, preset: str = "base", seed: int = 0, progress: bool = True) -> Path:
+def train_all(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progress: bool = True) -> Path:
+    get_preset(preset)  # an unknown name fails here, before any work
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     train_vq(data, out, preset, seed, progress)

@@ -27,7 +27,7 @@ from mogo_runtime.features import recover_from_ric
 from mogo_runtime.sampling import GREEDY
 
 from .export.graphs import DecoderGraph, StepGraph
-from .generate import TorchGenerator
+from .reference import TorchGenerator
 
 PROMPTS = ("a person walks forward", "a person waves with the right hand", "someone jumps in place twice",
            "a man kicks with his left leg", "a person walks forward and then jumps", "a person squats down slowly")

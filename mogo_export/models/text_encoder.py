@@ -23,8 +23,6 @@ import hashlib
 import importlib.util
 import json
 import math
-import os
-import tempfile
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +34,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 from tokenizers import Tokenizer
 
+from mogo_runtime.files import write_atomic
 from mogo_runtime.text import TokenizerSettings, check_texts, configure_tokenizer, tokenize
 
 
@@ -315,14 +314,9 @@ class CachedTextEncoder(TextEncoder):
         return torch.from_numpy(np.stack([self._rows[k] for k in keys]))  # (N, dim)
 
     def save(self) -> None:
-        self.cache_path.parent.mkdir(parents=True, exist_ok=True)
         keys = list(self._rows)
-        fd, tmp = tempfile.mkstemp(dir=self.cache_path.parent, prefix=self.cache_path.name, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:   # a file object, so np.savez does not append ".npz" to the name
-                np.savez(f, keys=np.array(keys), encoder=np.array(self.name),
-                         embeddings=np.stack([self._rows[k] for k in keys]).astype(np.float32))
-            os.replace(tmp, self.cache_path)  # readers see the old file or the new one, never half of one
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        # readers see the old file or the new one, never half of one; np.savez gets a file object, so it does not
+        # append ".npz" to the temporary name
+        write_atomic(self.cache_path, lambda f: np.savez(
+            f, keys=np.array(keys), encoder=np.array(self.name),
+            embeddings=np.stack([self._rows[k] for k in keys]).astype(np.float32)))

@@ -22,6 +22,8 @@ import torch.nn.functional as F
 
 @dataclass
 class TransformerConfig:
+    """Defaults are generic; the named sizes (tiny, base, paper) are in mogo_export/presets.py."""
+
     num_levels: int = 6          # RVQ levels L (must match the VQ)
     codebook_size: int = 512     # codes per level K (must match the VQ)
     text_dim: int = 384          # size of the sentence embedding (all-MiniLM-L6-v2: 384)
@@ -230,23 +232,3 @@ class RQHCTransformer(nn.Module):
             acc = hit.sum() / n
             acc_per_level = hit.sum(dim=(0, 1)) / valid.sum(dim=(0, 1))  # (L,)
         return loss, {"acc": acc, "acc_per_level": acc_per_level}
-
-
-# -----------------------------------------------------------------------------
-# presets
-
-PRESETS = {
-    # unit tests
-    "tiny": dict(num_levels=2, codebook_size=32, d_model=32, n_layers=2, n_heads=2, max_rel_dist=8),
-    # the demo model, matched to vq.PRESETS["base"]; with its schedule (train.SCHEDULES) both models train in
-    # 18 min on 2 idle cores. 700 steps without dropout take half that, but the int8 bundle's action accuracy
-    # drops from 0.90 to 0.87 (README, "Training and exporting")
-    "base": dict(num_levels=4, codebook_size=512, d_model=256, n_layers=4, n_heads=4, max_rel_dist=64),
-    # the paper's 6 levels of 8192 codes; it gives no transformer sizes, so a GPT-2-small body (~132M params)
-    "paper": dict(num_levels=6, codebook_size=8192, d_model=768, n_layers=12, n_heads=12, max_rel_dist=256),
-}
-
-
-def preset(name: str, **overrides) -> TransformerConfig:
-    """A TransformerConfig from a named preset ("tiny", "base", "paper"), with keyword overrides."""
-    return TransformerConfig(**{**PRESETS[name], **overrides})

@@ -15,6 +15,8 @@ import torch.nn.functional as F
 
 @dataclass
 class VQConfig:
+    """Defaults are generic; the named sizes (tiny, base, paper) are in mogo_export/presets.py."""
+
     input_dim: int = 263                # motion feature size per frame (HumanML3D: 263, KIT-ML: 251)
     width: int = 256                    # channels of the conv stacks
     code_dim: int = 256                 # latent / codebook vector size d
@@ -354,23 +356,3 @@ class MoSAVQ(nn.Module):
     def decode_indices(self, indices):
         """indices (B, T', L) -> motion features (B, T' * downsample, D)."""
         return self.decoder(self.quantizer.lookup(indices))
-
-
-# -----------------------------------------------------------------------------
-# presets
-
-PRESETS = {
-    # unit tests: trains in seconds
-    "tiny": dict(width=32, code_dim=16, downsample=2, depth=2, num_levels=2, codebook_size=32),
-    # the demo model: ~0.12 s per forward+backward of 32 x 64 frames on 2 idle cores (~5000 steps in 10 min);
-    # downsample 4 keeps the transformer's sequences at 10-50 tokens for 2-10 s clips at 20 fps
-    # mse_loss: with L1 alone one-armed waves decoded as standing still (0 of 31 val clips); with 0.1, 31 of 31
-    "base": dict(width=128, code_dim=128, downsample=4, depth=2, num_levels=4, codebook_size=512, mse_loss=0.1),
-    # the paper's sizes: stride 1, 6 levels of 8192 x 128 codes, width 512
-    "paper": dict(width=512, code_dim=128, downsample=1, depth=3, num_levels=6, codebook_size=8192, mse_loss=0.1),
-}
-
-
-def preset(name: str, **overrides) -> VQConfig:
-    """A VQConfig from a named preset ("tiny", "base", "paper"), with keyword overrides."""
-    return VQConfig(**{**PRESETS[name], **overrides})

@@ -6,6 +6,7 @@ names the file and the field when one is wrong. Nothing else reads manifest.json
 """
 from __future__ import annotations
 
+import json
 import math
 import re
 from dataclasses import asdict, dataclass, fields
@@ -21,6 +22,11 @@ SCHEMA = "mogo-bundle"
 # 2: cache-name templates; `normalization` always an object; text_encoder numbers stored as numbers.
 SCHEMA_VERSION = 2
 GRAPHS = ("text_encoder", "step", "lookup", "decoder")
+# name -> rank of each graph's fixed inputs and outputs (the step graph's cache names come from `cache`)
+GRAPH_IO = {"text_encoder": ({"input_ids": 2, "attention_mask": 2}, {"text_embedding": 2}),
+            "step": ({"text_embedding": 2, "tokens": 3}, {"logits": 4}),
+            "lookup": ({"tokens": 3}, {"latent": 3}),
+            "decoder": ({"latent": 3}, {"features": 3})}
 DTYPES = {"float32": "tensor(float)", "int64": "tensor(int64)", "float16": "tensor(float16)"}  # -> onnxruntime
 NORMALIZATION = "decoder-output-denormalised"   # decoder.onnx multiplies by Std and adds Mean itself
 _SHA256 = re.compile(r"[0-9a-f]{64}")
@@ -36,8 +42,8 @@ class _Fields:
     def __init__(self, obj, where: str, path: str = ""):
         self.where, self.path = where, path
         if not isinstance(obj, dict):
-            raise BundleError(f"{where}: {self._name(None) or 'the manifest'} must be a JSON object, "
-                              f"got {_kind(obj)}")
+            name = f"field {path}" if path else "the manifest"
+            raise BundleError(f"{where}: {name}: must be a JSON object, got {_kind(obj)}")
         self.obj = obj
 
     def _name(self, key) -> str:
@@ -83,6 +89,11 @@ class _Fields:
 
 def _kind(v) -> str:
     return "null" if v is None else type(v).__name__
+
+
+def _json(v) -> str:
+    """Compare JSON values as JSON: true is not 1, 20 is not 20.0."""
+    return json.dumps(v, sort_keys=True)
 
 
 @dataclass(frozen=True)
@@ -146,8 +157,8 @@ class TensorSpec:
         if dtype not in DTYPES:
             f.fail("dtype", f"expected one of {sorted(DTYPES)}, got {dtype!r}")
         if len(shape) > 8 or not all(isinstance(d, str) or (isinstance(d, int) and not isinstance(d, bool)
-                                                              and d >= 0) for d in shape):
-            f.fail("shape", f"expected at most 8 dims, each a name or an integer >= 0, got {shape!r}")
+                                                              and d >= 1) for d in shape):
+            f.fail("shape", f"expected at most 8 dims, each a name or an integer >= 1, got {shape!r}")
         return cls(f.str("name"), dtype, tuple(shape))
 
     def to_dict(self) -> dict:
@@ -289,12 +300,15 @@ class Manifest:
             if name not in self.files:
                 raise BundleError(f"{where}: {name!r} is named by the manifest but not listed in 'files'")
         step, m = self.graphs["step"], self.model
-        want_in = ["text_embedding", "tokens", *self.past_names]
-        want_out = ["logits", *self.present_names]
-        for kind, specs, want in (("inputs", step.inputs, want_in), ("outputs", step.outputs, want_out)):
-            if [s.name for s in specs] != want:
-                raise BundleError(f"{where}: field graphs.step.{kind}: names are {[s.name for s in specs]}, "
-                                  f"n_layers={m.n_layers} and the cache templates imply {want}")
+        for graph, (inputs, outputs) in GRAPH_IO.items():
+            cache = graph == "step"
+            for kind, specs, want in (("inputs", self.graphs[graph].inputs, {**inputs, **dict.fromkeys(
+                    self.past_names if cache else (), 4)}), ("outputs", self.graphs[graph].outputs, {
+                    **outputs, **dict.fromkeys(self.present_names if cache else (), 4)})):
+                got = {s.name: len(s.shape) for s in specs}
+                if list(got) != list(want) or got != want:
+                    raise BundleError(f"{where}: field graphs.{graph}.{kind}: names and ranks are {got}, expected "
+                                      f"{want}" + (" (n_layers and the cache templates)" if cache else ""))
         logits = step.outputs[0].shape
         if len(logits) != 4 or logits[2:] != (m.num_levels, m.codebook_size + 1):
             raise BundleError(f"{where}: field graphs.step.outputs[0].shape: {list(logits)} should end in "
@@ -309,9 +323,9 @@ def _parse_skeleton(f: _Fields, features: _Fields, model: ModelDims) -> Skeleton
         f.fail("name", f"unknown skeleton {name!r}; this runtime knows {sorted(SKELETONS)}")
     skeleton = SKELETONS[name]
     known = skeleton.to_dict()
-    for key in ("joint_names", "parents"):
-        if f.get(key) != known[key]:
-            f.fail(key, f"differs from the {name!r} skeleton this runtime knows")
+    for key in known:
+        if key != "offsets" and _json(f.get(key)) != _json(known[key]):
+            f.fail(key, f"differs from the {name!r} skeleton this runtime knows ({known[key]!r})")
     try:
         offsets = np.asarray(f.get("offsets"), dtype=np.float64)
     except (TypeError, ValueError):
@@ -319,10 +333,8 @@ def _parse_skeleton(f: _Fields, features: _Fields, model: ModelDims) -> Skeleton
     if offsets is None or offsets.shape != skeleton.offsets.shape or not np.allclose(offsets, known["offsets"],
                                                                                     atol=1e-6):
         f.fail("offsets", f"differ from the {name!r} skeleton this runtime knows")
-    try:
-        FeatureLayout.from_dict(features.obj)
-    except ValueError as e:
-        features.fail("", str(e))
+    if _json(features.obj) != _json(FeatureLayout.for_skeleton(skeleton).to_dict()):
+        features.fail("", f"differs from the feature layout of the {name!r} skeleton this runtime knows")
     if FeatureLayout.for_skeleton(skeleton).dim != model.feature_dim:
         f.fail("name", f"{name!r} has {FeatureLayout.for_skeleton(skeleton).dim} features per frame, "
                        f"model.feature_dim is {model.feature_dim}")
@@ -343,8 +355,9 @@ def _parse_normalization(f: _Fields, model: ModelDims) -> Normalization:
 
 
 def _parse_text_encoder(f: _Fields) -> TextEncoderSpec:
-    return TextEncoderSpec(name=f.str("name"), tokenizer=f.str("tokenizer"),
-                           max_length=f.int("max_length", 2, 65536), pooling=f.str("pooling", "mean"))
+    if f.str("pooling", "mean") != "mean":
+        f.fail("pooling", f"only mean pooling is supported, got {f.get('pooling')!r}")
+    return TextEncoderSpec(name=f.str("name"), tokenizer=f.str("tokenizer"), max_length=f.int("max_length", 2, 65536))
 
 
 def _parse_sampling(f: _Fields) -> SamplingConfig:

@@ -13,6 +13,7 @@ from mogo_export.export.bundle import export_bundle
 from mogo_export.export.graphs import DecoderGraph, StepGraph
 from mogo_export.models import transformer as T
 from mogo_export.models import vq as V
+from mogo_export.presets import get_preset
 from mogo_runtime.bundle import Bundle, BundleError
 
 FP32_BAR = 1e-4
@@ -23,9 +24,9 @@ def tiny(tmp_path_factory):
     """Random tiny models (parity needs no training) exported once for the module."""
     root = tmp_path_factory.mktemp("export")
     torch.manual_seed(0)
-    vc = V.preset("tiny")
+    vc = get_preset("tiny").vq_config()
     vq = V.MoSAVQ(vc).eval()
-    tc = T.preset("tiny", num_levels=vc.num_levels, codebook_size=vc.codebook_size, text_dim=64)
+    tc = get_preset("tiny").transformer_config(num_levels=vc.num_levels, codebook_size=vc.codebook_size, text_dim=64)
     tr = T.RQHCTransformer(tc).eval()
     rng = np.random.default_rng(0)
     mean, std = rng.normal(size=263).astype(np.float32), rng.uniform(0.5, 2, size=263).astype(np.float32)
@@ -127,12 +128,13 @@ def test_a_manifest_that_misdescribes_a_graph_is_refused_by_load_and_by_the_gene
     copy = tmp_path / "b"
     shutil.copytree(tiny["bundle"], copy)
     manifest = json.loads((copy / "manifest.json").read_text())
-    manifest["graphs"]["decoder"]["outputs"][0]["name"] = "joints"  # the graph's output is called otherwise
+    manifest["graphs"]["decoder"]["outputs"][0]["dtype"] = "float16"  # the graph's output is float32
     (copy / "manifest.json").write_text(json.dumps(manifest))
-    with pytest.raises(BundleError, match=r"decoder.onnx: outputs are .*manifest graphs\['decoder'\]"):
+    with pytest.raises(BundleError, match=r"decoder.onnx: output 'features' has type tensor\(float\), manifest "
+                                          r"says float16"):
         Bundle.load(copy)
     for variant in ("fp32", "int8"):  # loads with check_graphs=False: its own sessions are what get checked
-        with pytest.raises(BundleError, match=r"decoder.onnx: outputs are"):
+        with pytest.raises(BundleError, match=r"decoder.onnx: output 'features' has type"):
             MotionGenerator(copy, variant=variant)
 
 

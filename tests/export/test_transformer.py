@@ -3,7 +3,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from mogo_export.models.transformer import RQHCTransformer, TransformerConfig, preset
+from mogo_export.models.transformer import RQHCTransformer, TransformerConfig
+from mogo_export.presets import NAMES, get_preset
 
 
 @pytest.fixture(autouse=True)
@@ -17,7 +18,7 @@ def _one_thread():
 
 def _model(seed=0, **kw):
     torch.manual_seed(seed)
-    return RQHCTransformer(preset("tiny", **kw)).eval()
+    return RQHCTransformer(get_preset("tiny").transformer_config(**kw)).eval()
 
 
 def _tokens(cfg: TransformerConfig, B: int, S: int, seed=1):
@@ -28,7 +29,7 @@ def _tokens(cfg: TransformerConfig, B: int, S: int, seed=1):
 
 
 def test_special_ids_and_the_one_2d_embedding_table():
-    cfg = preset("tiny")
+    cfg = get_preset("tiny").transformer_config()
     K, L = cfg.codebook_size, cfg.num_levels
     assert (cfg.end_id, cfg.bos_id, cfg.pad_id) == (K, K + 1, K + 2)
     m = RQHCTransformer(cfg)
@@ -183,7 +184,7 @@ def test_loss_masks_padding_and_matches_cross_entropy():
 
 def test_a_few_optimiser_steps_lower_the_loss():
     torch.manual_seed(0)
-    m = RQHCTransformer(preset("tiny", dropout=0.0, cond_drop_prob=0.0)).train()
+    m = RQHCTransformer(get_preset("tiny").transformer_config(dropout=0.0, cond_drop_prob=0.0)).train()
     cfg = m.cfg
     B, T = 4, 10
     codes = torch.randint(0, cfg.codebook_size, (B, T, cfg.num_levels))
@@ -201,10 +202,10 @@ def test_a_few_optimiser_steps_lower_the_loss():
     assert losses[-1] < 0.8 * losses[0]
 
 
-@pytest.mark.parametrize("name", ["tiny", "base", "paper"])
+@pytest.mark.parametrize("name", NAMES)
 def test_presets_build_and_take_a_training_step(name):
     torch.manual_seed(0)
-    m = RQHCTransformer(preset(name)).train()
+    m = RQHCTransformer(get_preset(name).transformer_config()).train()
     cfg = m.cfg
     B, S = 1, 4
     tok = _tokens(cfg, B, S)

@@ -2,7 +2,8 @@
 import pytest
 import torch
 
-from mogo_export.models.vq import MoSAVQ, MotionDecoder, ResidualQuantizer, VQConfig, preset
+from mogo_export.models.vq import MoSAVQ, MotionDecoder, ResidualQuantizer, VQConfig
+from mogo_export.presets import NAMES, get_preset
 
 
 @pytest.fixture(autouse=True)
@@ -16,7 +17,7 @@ def _one_thread():
 
 def _model(seed=0, **kw):
     torch.manual_seed(seed)
-    return MoSAVQ(preset("tiny", **kw))
+    return MoSAVQ(get_preset("tiny").vq_config(**kw))
 
 
 def _randomise_scaling(q: ResidualQuantizer):
@@ -119,8 +120,8 @@ def test_first_training_batch_seeds_codebooks_from_scaled_residuals():
 
 def _one_level(**kw):
     torch.manual_seed(0)
-    cfg = preset("tiny", num_levels=1, codebook_size=8, code_dim=4, quantize_dropout_prob=0.0,
-                 learnable_scaling=False, ema_decay=0.5, **kw)
+    cfg = get_preset("tiny").vq_config(num_levels=1, codebook_size=8, code_dim=4, quantize_dropout_prob=0.0,
+                                       learnable_scaling=False, ema_decay=0.5, **kw)
     q = ResidualQuantizer(cfg).train()
     q.initted.fill_(True)
     with torch.no_grad():
@@ -179,7 +180,7 @@ def test_quantize_dropout_drops_a_random_suffix_of_levels():
 @pytest.mark.parametrize("downsample,depth", [(1, 2), (2, 2), (4, 2), (4, 3)])
 def test_decoder_is_causal_with_the_stated_receptive_field(downsample, depth):
     torch.manual_seed(0)
-    cfg = preset("tiny", downsample=downsample, depth=depth)
+    cfg = get_preset("tiny").vq_config(downsample=downsample, depth=depth)
     # float64: the farthest token's effect passes ~15 random convs and ReLUs and can be ~1e-8; it must not
     # drown in rounding, and any difference at all proves a dependency (untouched inputs give equal outputs)
     dec = MotionDecoder(cfg).double().eval()
@@ -231,7 +232,7 @@ def test_the_squared_term_pulls_hardest_where_the_error_is_largest():
 
 def test_a_few_optimiser_steps_lower_the_loss():
     torch.manual_seed(0)
-    m = MoSAVQ(preset("tiny", quantize_dropout_prob=0.0))
+    m = MoSAVQ(get_preset("tiny").vq_config(quantize_dropout_prob=0.0))
     t = torch.linspace(0, 6.28, 32)
     phase = torch.arange(263).unsqueeze(1) * 0.1
     x = torch.stack([torch.sin(t * (k + 1) / 3 + phase).T for k in range(4)])  # (4, 32, 263) smooth clips
@@ -246,10 +247,10 @@ def test_a_few_optimiser_steps_lower_the_loss():
     assert sum(losses[-3:]) / 3 < 0.8 * sum(losses[:3]) / 3
 
 
-@pytest.mark.parametrize("name", ["tiny", "base", "paper"])
+@pytest.mark.parametrize("name", NAMES)
 def test_presets_build_and_take_a_training_step(name):
     torch.manual_seed(0)
-    m = MoSAVQ(preset(name))
+    m = MoSAVQ(get_preset(name).vq_config())
     assert m.param_count() == sum(p.numel() for p in m.parameters())
     cfg = m.cfg
     x = torch.randn(1, 4 * cfg.downsample, cfg.input_dim)

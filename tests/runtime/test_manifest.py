@@ -1,0 +1,163 @@
+"""The typed manifest: it round-trips, and every malformed manifest ends in one clear BundleError naming the field.
+
+The probe mutates every field of a real manifest (missing, null, a number as a string, a list where an object
+belongs, zero, negative, huge, the wrong type) plus whole-file damage (JSON null, a list, deep nesting, bytes that
+are not UTF-8). Each case must either load (a field that is informative only) or raise BundleError with the file
+and field in its message; the CLI must print one `mogo: error:` line and exit 2, never a traceback.
+"""
+import copy
+import json
+import re
+import shutil
+
+import numpy as np
+import pytest
+from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
+
+from mogo_runtime import Bundle, BundleError, MotionGenerator
+from mogo_runtime.cli import main
+from mogo_runtime.manifest import SCHEMA_VERSION, Manifest
+
+BAD_VALUES = [None, "12", [], {}, 0, -1, True, 1e308, float("nan"), "x"]
+
+
+def _paths(obj, prefix=()):
+    """Every key path of a JSON value; lists contribute their first element only."""
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield prefix + (k,)
+            yield from _paths(v, prefix + (k,))
+    elif isinstance(obj, list) and obj:
+        yield prefix + (0,)
+        yield from _paths(obj[0], prefix + (0,))
+
+
+def _mutations(manifest: dict):
+    for path in _paths(manifest):
+        parent = manifest
+        for p in path[:-1]:
+            parent = parent[p]
+        if isinstance(parent, dict):
+            m = copy.deepcopy(manifest)
+            target = m
+            for p in path[:-1]:
+                target = target[p]
+            del target[path[-1]]
+            yield f"{'.'.join(map(str, path))} deleted", m
+        for value in BAD_VALUES:
+            m = copy.deepcopy(manifest)
+            target = m
+            for p in path[:-1]:
+                target = target[p]
+            if target[path[-1]] == value and type(target[path[-1]]) is type(value):
+                continue
+            target[path[-1]] = value
+            yield f"{'.'.join(map(str, path))} = {value!r}", m
+
+
+@pytest.fixture(scope="module")
+def manifest_dict(toy_bundle) -> dict:  # noqa: F811
+    return json.loads((toy_bundle / "manifest.json").read_text())
+
+
+def test_manifest_round_trips(toy_bundle, manifest_dict):  # noqa: F811
+    parsed = Manifest.parse(manifest_dict, "manifest.json")
+    assert json.loads(json.dumps(parsed.to_dict())) == manifest_dict
+    assert manifest_dict["schema_version"] == SCHEMA_VERSION
+    assert parsed.past_names[:2] == ["past_key_values.0.key", "past_key_values.0.value"]
+    assert parsed.present_names[-1] == f"present.{parsed.model.n_layers - 1}.value"
+
+
+def test_every_malformed_field_is_one_clear_error(toy_bundle, manifest_dict, tmp_path, capsys):  # noqa: F811
+    bundle = tmp_path / "bundle"
+    shutil.copytree(toy_bundle, bundle)
+    cases = list(_mutations(manifest_dict))
+    cases += [("JSON null", None), ("a list", []), ("a string", "manifest"), ("a number", 3)]
+    assert len(cases) > 400
+    refused, loaded = 0, []
+    for name, data in cases:
+        (bundle / "manifest.json").write_text(json.dumps(data))
+        try:
+            Bundle.load(bundle, check_graphs=False)
+            loaded.append(name)
+        except BundleError as e:
+            refused += 1
+            assert str(bundle / "manifest.json") in str(e) or str(bundle) in str(e), (name, str(e))
+    # What may change and still load: informative fields, derived fields that may be left out, reference-only
+    # numbers, optional settings with defaults, names of symbolic dims, a variant's quantization details.
+    informative = ("producer", "model.d_model deleted", "model.end_id deleted", "model.bos_id deleted",
+                   "model.pad_id deleted", "model.receptive_field = 0", "skeleton.offsets.0.0 = 0",
+                   "normalization.mean.0 = ", "normalization.std.0 = ", "text_encoder.name = ",
+                   "text_encoder.pooling deleted", "sampling_defaults", "variants.int8 deleted")
+    symbolic_dim = re.compile(r"graphs\.\w+\.(inputs|outputs)\.0\.shape\.0 = '\w+'$")
+    unexpected = [n for n in loaded if not (n.startswith(informative) or symbolic_dim.match(n)
+                                            or re.match(r"variants\.\w+\.\w+\.quantization", n))]
+    assert not unexpected, unexpected
+    assert refused >= len(cases) - len(loaded) and refused > 350
+    # the CLI: one line, exit 2, no traceback, on a sample of the refused cases and on raw bytes
+    samples = [c for c in cases if c[0] not in loaded][::25]
+    for name, data in samples:
+        (bundle / "manifest.json").write_text(json.dumps(data))
+        assert main(["info", str(bundle)]) == 2, name
+        err = capsys.readouterr().err
+        assert err.startswith("mogo: error:") and err.count("\n") == 1 and "Traceback" not in err, (name, err)
+    for raw in (b"\xff\xfe not utf-8", b"[" * 100_000, b"{\"schema\": ", b""):
+        (bundle / "manifest.json").write_bytes(raw)
+        assert main(["info", str(bundle)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("mogo: error:") and "manifest.json" in err and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda m: m["model"].update(fps=0), "field model.fps: expected a number in (0, 1000], got 0"),
+    (lambda m: m["model"].update(max_tokens="62"), "field model.max_tokens: expected an integer"),
+    (lambda m: m["model"].update(end_id=3), "field model.end_id: is 3"),
+    (lambda m: m.update(skeleton=[]), "field skeleton: must be a JSON object, got list"),
+    (lambda m: m["files"].update({"../outside.onnx": {"bytes": 1, "sha256": "0" * 64}}),
+     "a bundle file must be a plain file name"),
+    (lambda m: m["variants"]["fp32"]["step"].update(file="nowhere.onnx"), "variants.fp32.step.file: 'nowhere.onnx'"),
+    (lambda m: m["cache"].update(past="past.{layer}"), "field cache.past: a name template"),
+    (lambda m: m["graphs"]["step"]["outputs"][0].update(shape=["batch", "steps", 3, 5]), "should end in"),
+    (lambda m: m["sampling_defaults"].update(top_p=2.0), "top_p must be in (0, 1]"),
+    (lambda m: m.update(schema_version=1), "re-export the bundle"),
+])
+def test_errors_name_the_field(toy_bundle, manifest_dict, tmp_path, change, message):  # noqa: F811
+    m = copy.deepcopy(manifest_dict)
+    change(m)
+    with pytest.raises(BundleError) as e:
+        Manifest.parse(m, "bundle/manifest.json")
+    assert message in str(e.value) and str(e.value).startswith("bundle/manifest.json: ")
+
+
+def test_a_symlinked_or_swapped_graph_is_refused(toy_bundle, tmp_path):  # noqa: F811
+    bundle = tmp_path / "bundle"
+    shutil.copytree(toy_bundle, bundle)
+    outside = tmp_path / "outside.onnx"
+    shutil.copy(bundle / "lookup.onnx", outside)
+    (bundle / "lookup.onnx").unlink()
+    (bundle / "lookup.onnx").symlink_to(outside)
+    with pytest.raises(BundleError, match="not a regular file"):
+        Bundle.load(bundle)
+    # a graph from another model: same I/O, but its mogo.* facts disagree with this manifest
+    shutil.rmtree(bundle)
+    shutil.copytree(toy_bundle, bundle)
+    import onnx
+
+    g = onnx.load(str(bundle / "decoder.onnx"))
+    onnx.helper.set_model_props(g, {"graph": "decoder", "mogo.downsample": "8"})
+    onnx.save(g, str(bundle / "decoder.onnx"))
+    m = json.loads((bundle / "manifest.json").read_text())
+    import hashlib
+
+    data = (bundle / "decoder.onnx").read_bytes()
+    m["files"]["decoder.onnx"] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+    (bundle / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(BundleError, match="metadata mogo.downsample is '8'"):
+        MotionGenerator(bundle)
+
+
+def test_the_generator_reads_the_typed_manifest(toy_bundle):  # noqa: F811
+    gen = MotionGenerator(toy_bundle)
+    m = gen.bundle.manifest
+    assert gen.sampling_defaults == m.sampling_defaults and gen.max_tokens == m.model.max_tokens
+    assert np.isfinite(gen.generate("a person walks", seconds=0.4).joints).all()
