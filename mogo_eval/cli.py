@@ -8,8 +8,6 @@
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 from pathlib import Path
 
 
@@ -68,7 +66,7 @@ def _evaluate(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from mogo_export.presets import DEFAULT as DEFAULT_PRESET, NAMES as PRESETS
+    from mogo_export.cli import add_training_args
 
     ap = argparse.ArgumentParser(prog="mogo-eval", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -83,12 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=2, help="onnxruntime threads of the bundle rows")
     p.set_defaults(run=_quality)
 
-    p = sub.add_parser("ablation", help="MoSA-VQ with vs without learnable scaling (same budget and seed)")
-    p.add_argument("--data", type=Path, required=True)
-    p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET, help="see mogo_export/presets.py")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
+    p = add_training_args(sub.add_parser("ablation", help="MoSA-VQ with vs without learnable scaling (same "
+                                                          "budget and seed)"))
     p.set_defaults(run=_ablation)
 
     p = sub.add_parser("train-evaluator", help="train the text-motion contrastive evaluator the metrics use")
@@ -127,14 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return args.run(args)
-    except (ValueError, FileNotFoundError, KeyError) as e:  # bad input: a message, not a traceback
-        if os.environ.get("MOGO_DEBUG"):
-            raise
-        print(f"mogo-eval: error: {e} (set MOGO_DEBUG=1 for the traceback)", file=sys.stderr)
-        return 2
+    from mogo_export.cli import run_command
+
+    return run_command("mogo-eval", build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -56,7 +56,6 @@ def _verify(args) -> int:
 
 def main(argv=None) -> int:
     from .export.graphs import DEFAULT_OPSET
-    from .presets import DEFAULT as DEFAULT_PRESET, NAMES as PRESETS
 
     ap = argparse.ArgumentParser(prog="mogo-export", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -67,13 +66,7 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(run=_dataset)
 
-    p = sub.add_parser("train", help="train MoSA-VQ, extract tokens, train the RQHC-Transformer")
-    p.add_argument("--data", type=Path, required=True)
-    p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET, help="see mogo_export/presets.py")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--threads", type=int, default=None,
-                   help="torch threads (default: torch's choice; 1 is faster on a busy machine)")
+    p = add_training_args(sub.add_parser("train", help="train MoSA-VQ, extract tokens, train the RQHC-Transformer"))
     p.set_defaults(run=_train)
 
     p = sub.add_parser("export", help="export checkpoints to an ONNX bundle")
@@ -97,13 +90,30 @@ def main(argv=None) -> int:
     p.add_argument("--no-int8", action="store_true")
     p.set_defaults(run=_verify)
 
-    args = ap.parse_args(argv)
+    return run_command("mogo-export", ap.parse_args(argv))
+
+
+def add_training_args(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The options of every command that trains models (train, and evaluation's ablation)."""
+    from .presets import DEFAULT as DEFAULT_PRESET, NAMES as PRESETS
+
+    p.add_argument("--data", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET, help="see mogo_export/presets.py")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=None,
+                   help="torch threads (default: torch's choice; 1 is faster on a busy machine)")
+    return p
+
+
+def run_command(prog: str, args) -> int:
+    """Run a parsed command; bad input ends in one `PROG: error:` line and exit status 2, not a traceback."""
     try:
         return args.run(args)
-    except (ValueError, FileNotFoundError, KeyError) as e:  # bad input: a message, not a traceback
+    except (ValueError, FileNotFoundError, KeyError) as e:
         if os.environ.get("MOGO_DEBUG"):
             raise
-        print(f"mogo-export: error: {e} (set MOGO_DEBUG=1 for the traceback)", file=sys.stderr)
+        print(f"{prog}: error: {e} (set MOGO_DEBUG=1 for the traceback)", file=sys.stderr)
         return 2
 
 

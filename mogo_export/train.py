@@ -52,7 +52,11 @@ def _train_state(step, opt, rng, done: bool) -> dict:
 
 
 def _is_done(path: Path, kind: str) -> bool:
-    return path.exists() and bool(read_checkpoint(path, kind)["train"].get("done"))
+    """A finished checkpoint is kept as it is: training skips it (and says so)."""
+    done = path.exists() and bool(read_checkpoint(path, kind)["train"].get("done"))
+    if done:
+        print(f"{kind}: {path} is complete, skipping (delete it to retrain)")
+    return done
 
 
 # -----------------------------------------------------------------------------
@@ -89,7 +93,6 @@ def train_vq(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progre
     """`preset`: a name in mogo_export.presets; `schedule` and `overrides` (VQConfig fields) replace its values."""
     path = out / "vq.pt"
     if _is_done(path, "vq"):
-        print(f"vq: {path} is complete, skipping (delete it to retrain)")
         return path
     pset = get_preset(preset)
     sched = schedule or pset.vq_schedule
@@ -182,7 +185,7 @@ def _token_batch(seqs, caps, emb, rng, batch, cfg, by_length=None):
         idx = rng.integers(len(seqs), size=batch)
     lengths = np.array([len(seqs[i]) for i in idx])
     S = lengths.max() + 1
-    L, K = cfg.num_levels, cfg.codebook_size
+    L = cfg.num_levels
     tin = np.full((batch, S, L), cfg.pad_id, np.int64)
     tgt = np.full((batch, S, L), cfg.pad_id, np.int64)
     text = np.empty((batch, cfg.text_dim), np.float32)
@@ -203,7 +206,6 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
     fields) replace its values. Levels, codes and text_dim always come from the trained VQ and the encoder."""
     path = out / "transformer.pt"
     if _is_done(path, "transformer"):
-        print(f"transformer: {path} is complete, skipping (delete it to retrain)")
         return path
     pset = get_preset(preset)
     sched = schedule or pset.transformer_schedule

@@ -48,3 +48,14 @@ def tiny_checkpoints() -> Path:
     from tiny_bundle import ensure_tiny_bundle
 
     return ensure_tiny_bundle()[0]
+
+
+@pytest.fixture
+def one_torch_thread():
+    """Tiny models: one thread is faster, and two OpenMP threads on a busy 2-core machine can be 10x slower."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)

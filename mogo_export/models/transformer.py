@@ -8,6 +8,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from mogo_runtime.manifest import SpecialTokens
+
 # Tokens: ids 0..K-1 are codes, END = K ends the motion (the head predicts K+1 classes), BOS = K+1 marks
 # "the PnQ prefix goes here" (input only), PAD = K+2 pads batches (input only).
 #
@@ -21,7 +23,7 @@ import torch.nn.functional as F
 
 
 @dataclass
-class TransformerConfig:
+class TransformerConfig(SpecialTokens):
     """Defaults are generic; the named sizes (tiny, base, paper) are in mogo_export/presets.py."""
 
     num_levels: int = 6          # RVQ levels L (must match the VQ)
@@ -34,18 +36,6 @@ class TransformerConfig:
     dropout: float = 0.1         # dropout on attention weights and residual branches (training only)
     max_rel_dist: int = 64       # relative distances are clipped to this; phi has max_rel_dist + 1 rows
     cond_drop_prob: float = 0.1  # chance per training sample to replace the text by the null (zero) text
-
-    @property
-    def end_id(self) -> int:
-        return self.codebook_size
-
-    @property
-    def bos_id(self) -> int:
-        return self.codebook_size + 1
-
-    @property
-    def pad_id(self) -> int:
-        return self.codebook_size + 2
 
     @property
     def vocab_size(self) -> int:  # rows per level of the embedding table

@@ -96,23 +96,11 @@ def _json(v) -> str:
     return json.dumps(v, sort_keys=True)
 
 
-@dataclass(frozen=True)
-class ModelDims:
-    """The manifest's `model` section: the network's sizes, as the loop and a consumer need them."""
+class SpecialTokens:
+    """Token ids past the codebook, for a class with a `codebook_size` field: codes are 0..K-1, END = K ends the
+    motion, BOS = K+1 is the prompt prefix in a level's slot, PAD = K+2 pads training batches."""
 
-    num_levels: int          # L: residual quantizer levels = parallel streams of the transformer
-    codebook_size: int       # K: codes per level; END = K, BOS = K + 1, PAD = K + 2
-    n_layers: int            # transformer layers: one cached key and value each
-    n_heads: int
-    head_dim: int
-    text_dim: int            # width of the text embedding the step graph takes
-    max_rel_dist: int        # relative positions are clipped here (Transformer-XL)
-    downsample: int          # motion frames per token
-    fps: float
-    receptive_field: int     # tokens of history (besides its own) that a decoded frame depends on
-    feature_dim: int         # 263 for HumanML3D features
-    latent_dim: int          # width of the decoder's input
-    max_tokens: int          # the longest motion the model was trained for, in tokens
+    codebook_size: int
 
     @property
     def end_id(self) -> int:
@@ -125,6 +113,25 @@ class ModelDims:
     @property
     def pad_id(self) -> int:
         return self.codebook_size + 2
+
+
+@dataclass(frozen=True)
+class ModelDims(SpecialTokens):
+    """The manifest's `model` section: the network's sizes, as the loop and a consumer need them."""
+
+    num_levels: int          # L: one token per level and time step
+    codebook_size: int       # K (see SpecialTokens)
+    n_layers: int            # transformer layers: one cached key and value each
+    n_heads: int
+    head_dim: int
+    text_dim: int            # width of the text embedding the step graph takes
+    max_rel_dist: int        # relative positions are clipped here (Transformer-XL)
+    downsample: int          # motion frames per token
+    fps: float
+    receptive_field: int     # tokens of history (besides its own) that a decoded frame depends on
+    feature_dim: int         # 263 for HumanML3D features
+    latent_dim: int          # width of the decoder's input
+    max_tokens: int          # the longest motion the model was trained for, in tokens
 
     @property
     def max_seconds(self) -> float:

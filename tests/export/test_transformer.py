@@ -7,13 +7,7 @@ from mogo_export.models.transformer import RQHCTransformer, TransformerConfig
 from mogo_export.presets import NAMES, get_preset
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # tiny models: one thread is faster, and two OpenMP threads on a busy 2-core machine can be 10x slower
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _model(seed=0, **kw):

@@ -4,8 +4,8 @@ import json
 import numpy as np
 import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
-from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
+from tokenizers import Tokenizer
+from toy_bundle import mean_pool_encoder, word_tokenizer
 
 from mogo_runtime.text import TextEncoderSession, TokenizerSettings, configure_tokenizer, tokenize
 
@@ -16,41 +16,11 @@ TABLE = np.random.default_rng(0).standard_normal((len(VOCAB), DIM)).astype(np.fl
 
 
 def make_tokenizer() -> Tokenizer:
-    tok = Tokenizer(models.WordLevel(VOCAB, unk_token="[UNK]"))
-    tok.normalizer = normalizers.Lowercase()
-    tok.pre_tokenizer = pre_tokenizers.Whitespace()
-    tok.post_processor = processors.TemplateProcessing(single="[CLS] $A [SEP]",
-                                                       special_tokens=[("[CLS]", 2), ("[SEP]", 3)])
-    return tok
+    return word_tokenizer(WORDS)
 
 
 def make_graph(max_length: int = MAX_LEN) -> onnx.ModelProto:
-    """text_embedding = l2norm(sum_s TABLE[ids] * mask / sum_s mask), like MiniLM's pooling."""
-    nodes = [
-        helper.make_node("Gather", ["table", "input_ids"], ["h"]),                     # (N, S, D)
-        helper.make_node("Cast", ["attention_mask"], ["m"], to=TensorProto.FLOAT),     # (N, S)
-        helper.make_node("Unsqueeze", ["m", "axis_last"], ["m3"]),                    # (N, S, 1)
-        helper.make_node("Mul", ["h", "m3"], ["hm"]),
-        helper.make_node("ReduceSum", ["hm", "axis_seq"], ["s"], keepdims=0),          # (N, D)
-        helper.make_node("ReduceSum", ["m3", "axis_seq"], ["n"], keepdims=0),          # (N, 1)
-        helper.make_node("Div", ["s", "n"], ["mean"]),
-        helper.make_node("ReduceL2", ["mean", "axis_last"], ["norm"], keepdims=1),     # (N, 1)
-        helper.make_node("Div", ["mean", "norm"], ["text_embedding"]),
-    ]
-    graph = helper.make_graph(
-        nodes, "tiny_text_encoder",
-        [helper.make_tensor_value_info("input_ids", TensorProto.INT64, ["batch", "sequence"]),
-         helper.make_tensor_value_info("attention_mask", TensorProto.INT64, ["batch", "sequence"])],
-        [helper.make_tensor_value_info("text_embedding", TensorProto.FLOAT, ["batch", DIM])],
-        [numpy_helper.from_array(TABLE, "table"),
-         numpy_helper.from_array(np.array([-1], np.int64), "axis_last"),
-         numpy_helper.from_array(np.array([1], np.int64), "axis_seq")])
-    # onnx 1.23 stamps IR 14 by default; onnxruntime 1.31 loads at most IR 13
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 20)], ir_version=10)
-    helper.set_model_props(model, {"encoder": "tiny", "dim": str(DIM), "pooling": "mean", "normalized": "true",
-                                   "max_length": str(max_length)})
-    onnx.checker.check_model(model, full_check=True)
-    return model
+    return mean_pool_encoder(TABLE, max_length, name="tiny")
 
 
 def reference(texts: list[str]) -> np.ndarray:

@@ -26,7 +26,6 @@ from mogo_runtime.text import TokenizerSettings, configure_tokenizer
 
 WORDS = ["a", "person", "walks", "forward", "waves", "hand", "jumps", "twice", "left", "right", "runs", "sits",
          "down", "turns", "around", "and", "then", "kicks"]
-VOCAB = {"[PAD]": 0, "[UNK]": 1, "[CLS]": 2, "[SEP]": 3, **{w: i + 4 for i, w in enumerate(WORDS)}}
 L, K, N_LAYERS, N_HEADS, HEAD_DIM = 2, 16, 2, 1, 4
 TEXT_DIM, LATENT, DOWNSAMPLE, RECEPTIVE, FPS, MAX_TOKENS, MAX_LEN = 8, 6, 4, 2, 20.0, 24, 12
 D = FeatureLayout.for_skeleton(HUMANML3D).dim
@@ -49,10 +48,10 @@ def _io(specs):
     return [_vi(s["name"], s["dtype"], s["shape"]) for s in specs]
 
 
-def graph_specs() -> dict:
+def graph_specs(text_dim: int = TEXT_DIM) -> dict:
     cache = ["batch", L * N_HEADS, "past", HEAD_DIM]
     present = ["batch", L * N_HEADS, "past_plus_steps", HEAD_DIM]
-    step_in = [{"name": "text_embedding", "dtype": "float32", "shape": ["batch", TEXT_DIM]},
+    step_in = [{"name": "text_embedding", "dtype": "float32", "shape": ["batch", text_dim]},
                {"name": "tokens", "dtype": "int64", "shape": ["batch", "steps", L]}]
     step_out = [{"name": "logits", "dtype": "float32", "shape": ["batch", "steps", L, K + 1]}]
     for i in range(N_LAYERS):
@@ -62,7 +61,7 @@ def graph_specs() -> dict:
     return {
         "text_encoder": {"inputs": [{"name": "input_ids", "dtype": "int64", "shape": ["batch", "seq"]},
                                     {"name": "attention_mask", "dtype": "int64", "shape": ["batch", "seq"]}],
-                         "outputs": [{"name": "text_embedding", "dtype": "float32", "shape": ["batch", TEXT_DIM]}]},
+                         "outputs": [{"name": "text_embedding", "dtype": "float32", "shape": ["batch", text_dim]}]},
         "step": {"inputs": step_in, "outputs": step_out},
         "lookup": {"inputs": [{"name": "tokens", "dtype": "int64", "shape": ["batch", "tokens", L]}],
                    "outputs": [{"name": "latent", "dtype": "float32", "shape": ["batch", "tokens", LATENT]}]},
@@ -71,7 +70,8 @@ def graph_specs() -> dict:
     }
 
 
-def text_encoder(rng, spec) -> onnx.ModelProto:
+def mean_pool_encoder(table: np.ndarray, max_length: int, name: str = "toy") -> onnx.ModelProto:
+    """text_embedding = l2norm(sum_s table[ids] * mask / sum_s mask), like MiniLM's pooling."""
     nodes = [
         helper.make_node("Gather", ["table", "input_ids"], ["h"]),                     # (N, S, E)
         helper.make_node("Cast", ["attention_mask"], ["m"], to=TensorProto.FLOAT),     # (N, S)
@@ -83,11 +83,11 @@ def text_encoder(rng, spec) -> onnx.ModelProto:
         helper.make_node("ReduceL2", ["mean", "axis_last"], ["norm"], keepdims=1),
         helper.make_node("Div", ["mean", "norm"], ["text_embedding"]),
     ]
-    inits = {"table": rng.standard_normal((len(VOCAB), TEXT_DIM)).astype(np.float32),
-             "axis_last": np.array([-1], np.int64), "axis_seq": np.array([1], np.int64)}
-    return _model(nodes, "toy_text_encoder", _io(spec["inputs"]), _io(spec["outputs"]), inits,
-                  {"encoder": "toy", "dim": str(TEXT_DIM), "pooling": "mean", "normalized": "true",
-                   "max_length": str(MAX_LEN)})
+    inits = {"table": table, "axis_last": np.array([-1], np.int64), "axis_seq": np.array([1], np.int64)}
+    io = graph_specs(text_dim=table.shape[1])["text_encoder"]
+    return _model(nodes, f"{name}_text_encoder", _io(io["inputs"]), _io(io["outputs"]), inits,
+                  {"encoder": name, "dim": str(table.shape[1]), "pooling": "mean", "normalized": "true",
+                   "max_length": str(max_length)})
 
 
 def step(rng, spec) -> onnx.ModelProto:
@@ -155,13 +155,15 @@ def decoder(rng, spec, mean: np.ndarray) -> onnx.ModelProto:
     return _model(nodes, "toy_decoder", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "decoder"})
 
 
-def tokenizer() -> Tokenizer:
-    tok = Tokenizer(models.WordLevel(VOCAB, unk_token="[UNK]"))
+def word_tokenizer(words: list[str]) -> Tokenizer:
+    """A WordLevel tokenizer over `words` with BERT's special tokens, not yet configured (no truncation)."""
+    vocab = {"[PAD]": 0, "[UNK]": 1, "[CLS]": 2, "[SEP]": 3, **{w: i + 4 for i, w in enumerate(words)}}
+    tok = Tokenizer(models.WordLevel(vocab, unk_token="[UNK]"))
     tok.normalizer = normalizers.Lowercase()
     tok.pre_tokenizer = pre_tokenizers.Whitespace()
     tok.post_processor = processors.TemplateProcessing(single="[CLS] $A [SEP]",
                                                        special_tokens=[("[CLS]", 2), ("[SEP]", 3)])
-    return configure_tokenizer(tok, TokenizerSettings(max_length=MAX_LEN))
+    return tok
 
 
 def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = True) -> Path:
@@ -172,11 +174,12 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     specs = graph_specs()
-    onnx.save(text_encoder(rng, specs["text_encoder"]), out / "text_encoder.onnx")
+    table = rng.standard_normal((len(WORDS) + 4, TEXT_DIM)).astype(np.float32)
+    onnx.save(mean_pool_encoder(table, MAX_LEN), out / "text_encoder.onnx")
     onnx.save(step(rng, specs["step"]), out / "step.onnx")
     onnx.save(lookup(rng, specs["lookup"]), out / "lookup.onnx")
     onnx.save(decoder(rng, specs["decoder"], mean), out / "decoder.onnx")
-    tokenizer().save(str(out / "tokenizer.json"))
+    configure_tokenizer(word_tokenizer(WORDS), TokenizerSettings(max_length=MAX_LEN)).save(str(out / "tokenizer.json"))
     fp32 = {g: GraphFile(f"{g}.onnx") for g in specs}
     variants = {"fp32": fp32}
     if int8:

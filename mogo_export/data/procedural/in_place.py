@@ -15,6 +15,20 @@ from .curves import Keys, ease
 from .pose import MIN_SECONDS, OTHER, SIDES, Pose, flat_foot, seconds_to_frames
 
 
+def hold_cycles(channel: str, start: float, rise: float, hold: float, rest: float, reps: int) -> tuple[Keys, float]:
+    """Keys of `reps` cycles on one channel: rise 0 -> 1, hold, fall back in `rise`, rest; -> (keys, end time)."""
+    k = Keys(**{channel: 0})
+    t = start
+    for _ in range(reps):
+        k.add(t, **{channel: 0})
+        k.add(t + rise, **{channel: 1})
+        k.add(t + rise + hold, **{channel: 1})
+        t += 2 * rise + hold
+        k.add(t, **{channel: 0})
+        t += rest
+    return k, t
+
+
 def _wave(rng, side: str, budget: TimeBudget) -> Action:
     waves = int(rng.integers(2, 7))
     high = bool(rng.random() < 0.5)
@@ -115,15 +129,7 @@ def squat(rng, budget: TimeBudget = FULL_BUDGET) -> Action:
     lead_in, lead_out = rng.uniform(0.3, 0.7), rng.uniform(0.3, 0.7)
     reps = budget.fit(reps, 2 * down + 2 * hold, lead_in + lead_out)
     thigh, shank, pitch = (90.0, 35.0, 40.0) if deep else (50.0, 20.0, 22.0)
-    k = Keys(d=0)
-    t = lead_in
-    for _ in range(reps):
-        k.add(t, d=0)
-        k.add(t + down, d=1)
-        k.add(t + down + hold, d=1)
-        t += 2 * down + hold
-        k.add(t, d=0)
-        t += hold
+    k, t = hold_cycles("d", lead_in, down, hold, hold, reps)
     pose = Pose(seconds_to_frames(t + lead_out))
     d = k("d", pose.t)
     p = d * pitch
@@ -165,7 +171,7 @@ def sit_down(rng, budget: TimeBudget = FULL_BUDGET) -> Action:
         pose.leg(side, flex=flex, abd=4 * hands, knee=knee, dorsi=flat_foot(pitch, flex, knee))
         pose.arm(side, flex=hands * 38, elbow=hands * 50)
     pose.head(nod=-0.3 * pitch)
-    phrases = [f"sits down{adverb(speed)}", "sits down on a chair", f"lowers {{pos}} body into a seated position",
+    phrases = [f"sits down{adverb(speed)}", "sits down on a chair", "lowers {pos} body into a seated position",
                f"sits down{adverb(speed)} and stays seated", "takes a seat"]
     return Action("sit_down", pose, phrases, dict(speed=speed))
 
@@ -242,15 +248,7 @@ def raise_both_arms(rng, budget: TimeBudget = FULL_BUDGET) -> Action:
     up, hold = rng.uniform(0.6, 1.1), rng.uniform(0.3, 1.0)
     lead_in, lead_out = rng.uniform(0.3, 0.7), rng.uniform(0.3, 0.7)
     reps = budget.fit(reps, 2 * up + hold + 0.2, lead_in + lead_out)
-    k = Keys(a=0)
-    t = lead_in
-    for _ in range(reps):
-        k.add(t, a=0)
-        k.add(t + up, a=1)
-        k.add(t + up + hold, a=1)
-        t += 2 * up + hold
-        k.add(t, a=0)
-        t += 0.2
+    k, t = hold_cycles("a", lead_in, up, hold, 0.2, reps)
     pose = Pose(seconds_to_frames(t + lead_out))
     a = k("a", pose.t)
     angle = 168.0 if high else 90.0
@@ -294,15 +292,7 @@ def bow(rng, budget: TimeBudget = FULL_BUDGET) -> Action:
     down, hold = rng.uniform(0.6, 1.0), rng.uniform(0.3, 1.0)
     lead_in, lead_out = rng.uniform(0.3, 0.7), rng.uniform(0.4, 0.8)
     reps = budget.fit(reps, 2 * down + hold + 0.3, lead_in + lead_out)
-    k = Keys(b=0)
-    t = lead_in
-    for _ in range(reps):
-        k.add(t, b=0)
-        k.add(t + down, b=1)
-        k.add(t + down + hold, b=1)
-        t += 2 * down + hold
-        k.add(t, b=0)
-        t += 0.3
+    k, t = hold_cycles("b", lead_in, down, hold, 0.3, reps)
     pose = Pose(seconds_to_frames(t + lead_out))
     b = k("b", pose.t)
     pitch = b * depth * 0.75
