@@ -39,6 +39,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from mogo_runtime.bundle import Bundle
+from mogo_runtime.files import write_atomic
 from mogo_runtime.sampling import SamplingConfig
 
 from mogo_export.checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
@@ -250,8 +252,7 @@ def bundle_source(bundle: Path, variant: str, sampling: SamplingConfig | None = 
 
 def bundle_sampling(bundle: Path) -> SamplingConfig:
     """The sampling defaults a bundle ships (what its users get), for the torch row to sample alike."""
-    manifest = json.loads((Path(bundle) / "manifest.json").read_text())
-    return SamplingConfig(**manifest.get("sampling_defaults", {}))
+    return Bundle.load(bundle, verify_hashes=False, check_graphs=False).manifest.sampling_defaults
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -563,9 +564,5 @@ def print_report(report: dict) -> None:
 
 
 def write_json(report: dict, path: Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(report, indent=2))
-    tmp.replace(path)
-    return path
+    text = json.dumps(report, indent=2)
+    return write_atomic(Path(path), lambda f: f.write(text.encode()))

@@ -62,10 +62,6 @@ def get_text_encoder(name: str, **kwargs) -> TextEncoder:
     return _REGISTRY[name](**kwargs)
 
 
-def list_text_encoders() -> list[str]:
-    return sorted(_REGISTRY)
-
-
 # ---------------------------------------------------------------------------------------------------------
 # A compact BERT encoder (post-LayerNorm, as in the original BERT), just enough for sentence embeddings.
 
