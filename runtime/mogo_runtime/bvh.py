@@ -1,32 +1,22 @@
-"""BVH export: joint positions in metres -> a BVH file whose forward kinematics reproduce them.
+"""BVH export: joint positions in metres -> a BVH file whose forward kinematics reproduce them (inverse kinematics).
 
-Motion in mogo is joint positions; animation tools want a skeleton with rotations. `joints_to_bvh_text`
-builds one by inverse kinematics:
-
-* Hierarchy and joint names come from the `Skeleton`. Every joint has rest rotation identity (the BVH
-  convention), so a joint's OFFSET is its rest bone vector in world axes (y up, the body faces +z).
-* OFFSETs are the skeleton's rest directions with bone lengths measured on the clip (median over frames),
-  so a clip on a skeleton of another size is still reproduced. Where a joint has several children (pelvis,
-  spine3) their relative layout is a fact of the clip (HumanML3D's hips are 69 degrees apart seen from
-  the pelvis, not the 180 of the rest directions), so it is measured too: the rigid shape that best fits
-  all frames (generalised Procrustes), turned to lie as close as possible to the rest directions.
-* Rotations: a joint with several children gets the best-fit (Kabsch) rotation of its children's offsets
-  onto the observed bones; a joint with one child gets the smallest rotation, in its parent's frame, that
-  swings its rest bone onto the observed one (no twist), except near the one direction where that swing
-  is undefined (bone pointing opposite its rest direction, e.g. an arm straight up) where the twist is
-  carried over from the previous frame and then relaxed back to zero, so nothing flips. Leaves keep
-  their parent's rotation.
-* Euler angles are intrinsic, in degrees, in the order the CHANNELS line lists them: the root's
-  `Yrotation Xrotation Zrotation` (R = Ry @ Rx @ Rz, heading first) and every other joint's
-  `Zrotation Yrotation Xrotation` (R = Rz @ Ry @ Rx); see ROOT_ORDER / JOINT_ORDER for why. They are
-  continuous over time: of the two Euler triples that give each rotation the one nearest the previous
-  frame is kept, then unwrapped, so there are no 180 or 360 degree jumps.
-* The root has position channels and OFFSET 0 0 0, so the channels are its world position whatever a
-  reader does with root offsets.
-
-Units: input joints are metres; the file is written in centimetres (`units="cm"`, the default, what most
-tools expect) or metres (`units="m"`). BVH has no comment syntax, so the unit is stated only here and by
-the caller's choice of `units`.
+Hierarchy and joint names come from the `Skeleton`; every joint has rest rotation identity (the BVH convention), so
+its OFFSET is its rest bone vector in world axes (y up, the body faces +z): the skeleton's rest direction with the
+bone length measured on the clip (median over frames), so a clip on a skeleton of another size is still reproduced.
+Where a joint has several children (pelvis, spine3) their layout is a fact of the clip too (HumanML3D's hips are 69
+degrees apart seen from the pelvis, not the 180 of the rest directions): the rigid shape that best fits all frames
+(generalised Procrustes), turned to lie as close as it can to the rest directions. Such a joint gets the best-fit
+(Kabsch) rotation of its children's offsets onto the observed bones; a joint with one child gets the smallest
+rotation, in its parent's frame, that swings its rest bone onto the observed one (no twist), except near the one
+direction where that swing is undefined (bone opposite its rest direction, e.g. an arm straight up): there the twist
+is carried over from the previous frame and then relaxed back to zero, so nothing flips. Leaves keep their parent's
+rotation. Euler angles are intrinsic, in degrees, in the order the CHANNELS line lists them: the root's `Yrotation
+Xrotation Zrotation` (R = Ry @ Rx @ Rz, heading first), every other joint's `Zrotation Yrotation Xrotation` (R = Rz @
+Ry @ Rx; ROOT_ORDER / JOINT_ORDER say why), continuous over time (of the two Euler triples of each rotation the one
+nearest the previous frame, then unwrapped: no 180 or 360 degree jumps). The root has position channels and OFFSET
+0 0 0, so the channels are its world position whatever a reader does with root offsets. The file is in centimetres
+(`units="cm"`, the default, what most tools expect) or metres (`units="m"`); BVH has no comment syntax, so only the
+caller's choice of `units` states which.
 """
 from __future__ import annotations
 
@@ -35,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .files import write_atomic
-from .skeleton import HUMANML3D, Skeleton
+from .skeleton import HUMANML3D, Skeleton, check_fps
 
 _UNIT_SCALE = {"cm": 100.0, "m": 1.0}
 # Intrinsic Euler orders (R = R_first @ R_mid @ R_last), chosen so gimbal lock (middle angle +-90) needs a
@@ -53,11 +43,11 @@ def joints_to_bvh_text(joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0
     """BVH text for `joints` (T, J, 3) in metres (y up), written in `units` ("cm" or "m") at `fps`."""
     if units not in _UNIT_SCALE:
         raise ValueError(f"units must be one of {sorted(_UNIT_SCALE)}, got {units!r}")
-    fps = _check_fps(fps)
-    pos = _check_joints(joints, skeleton)
+    fps = check_fps(fps)
+    pos = skeleton.check_joints(joints, count=True)
     offsets = rest_offsets(pos, skeleton)
     local = _local_rotations(pos, skeleton, offsets, fps)              # (T, J, 3, 3)
-    root = _root(skeleton)
+    root = skeleton.root
     euler = np.degrees(_continuous_euler(local, JOINT_ORDER))          # (T, J, 3) in channel order
     euler[:, root] = np.degrees(_continuous_euler(local[:, root:root + 1], ROOT_ORDER))[:, 0]
     return _format(pos, offsets, euler, skeleton, fps, _UNIT_SCALE[units])
@@ -65,21 +55,16 @@ def joints_to_bvh_text(joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0
 
 def write_bvh(path, joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, units: str = "cm") -> Path:
     """Write `joints` (T, J, 3) in metres as a BVH file at `path` (atomically). Returns the path."""
-    text = joints_to_bvh_text(joints, skeleton, fps, units)
-    path = Path(path)
-    data = text.encode("ascii")
-    write_atomic(path, lambda f: f.write(data))
-    return path
+    data = joints_to_bvh_text(joints, skeleton, fps, units).encode("ascii")
+    return write_atomic(Path(path), lambda f: f.write(data))
 
 
 def rest_offsets(joints, skeleton: Skeleton = HUMANML3D) -> np.ndarray:
     """(J, 3) rest bone vectors (metres) fitted to a clip `joints` (T, J, 3); see the module docstring."""
-    pos = _check_joints(joints, skeleton)
-    parents = np.asarray(skeleton.parents)
-    children = _children(skeleton)
+    pos = skeleton.check_joints(joints, count=True)
     raw = np.asarray(skeleton.raw_offsets, dtype=np.float64)
     offsets = np.zeros((skeleton.num_joints, 3))
-    for j, p in enumerate(parents):
+    for j, p in enumerate(skeleton.parents):
         if p < 0:
             continue
         norm = np.linalg.norm(raw[j])
@@ -90,7 +75,7 @@ def rest_offsets(joints, skeleton: Skeleton = HUMANML3D) -> np.ndarray:
             raise ValueError(f"bone {skeleton.joint_names[p]!r} -> {skeleton.joint_names[j]!r} has zero length "
                              f"in the clip (median over frames); cannot build a skeleton")
         offsets[j] = raw[j] / norm * length
-    for j, ch in enumerate(children):
+    for j, ch in enumerate(skeleton.children):
         if len(ch) < 2:
             continue
         bones = pos[:, ch] - pos[:, None, j]                            # (T, k, 3)
@@ -108,12 +93,12 @@ def rest_offsets(joints, skeleton: Skeleton = HUMANML3D) -> np.ndarray:
 
 def _local_rotations(pos: np.ndarray, skeleton: Skeleton, offsets: np.ndarray, fps: float) -> np.ndarray:
     T, J, _ = pos.shape
-    children = _children(skeleton)
+    children = skeleton.children
     glob = np.zeros((T, J, 3, 3))
     local = np.zeros((T, J, 3, 3))
     eye = np.broadcast_to(np.eye(3), (T, 3, 3))
     relax = float(np.exp(-1.0 / (fps * _TWIST_RELAX_S)))
-    for j in _dfs_order(skeleton):
+    for j in skeleton.depth_first():
         p = skeleton.parents[j]
         parent = glob[:, p] if p >= 0 else eye
         ch = children[j]
@@ -171,17 +156,13 @@ def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     axis = np.cross(a, b)
     sin = np.linalg.norm(axis, axis=-1)
     cos = np.einsum("ni,ni->n", a, b)
-    axis = np.where(sin[:, None] > 1e-12, axis / np.maximum(sin, 1e-300)[:, None], _perpendicular_rows(a))
-    return _axis_angle_rows(axis, np.arctan2(sin, cos))
+    axis = np.where(sin[:, None] > 1e-12, axis / np.maximum(sin, 1e-300)[:, None], _perpendicular(a))
+    return _axis_angle(axis, np.arctan2(sin, cos))
 
 
 def _axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    return _axis_angle_rows(np.broadcast_to(axis, (len(angle), 3)), angle)
-
-
-def _axis_angle_rows(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rodrigues: (N, 3, 3) rotations by angle[n] about unit axis[n]."""
-    x, y, z = axis[:, 0], axis[:, 1], axis[:, 2]
+    """Rodrigues: (N, 3, 3) rotations by angle[n] about unit axis[n] (axis (N, 3), or (3,) for all)."""
+    x, y, z = np.broadcast_to(axis, (len(angle), 3)).T
     k = np.zeros((len(angle), 3, 3))
     k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -z, y, -x
     k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = z, -y, x
@@ -190,11 +171,8 @@ def _axis_angle_rows(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
 
 
 def _perpendicular(u: np.ndarray) -> np.ndarray:
-    return _perpendicular_rows(u[None])[0]
-
-
-def _perpendicular_rows(u: np.ndarray) -> np.ndarray:
-    helper = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    """Unit vectors (..., 3) perpendicular to u (..., 3)."""
+    helper = np.where(np.abs(u[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     return _normalise(np.cross(u, helper), fallback=np.array([0.0, 0.0, 1.0]))
 
 
@@ -211,13 +189,10 @@ def _collinear(vectors: np.ndarray) -> bool:
 # ----------------------------------------------------------------------------------------------------
 # Euler angles
 
-_AXIS = {"X": 0, "Y": 1, "Z": 2}
-
-
 def _continuous_euler(rot: np.ndarray, order: str) -> np.ndarray:
     """(T, N, 3, 3) rotations -> (T, N, 3) radians, intrinsic `order` (e.g. "ZYX": R = Rz @ Ry @ Rx),
     angles listed in that order, continuous in time."""
-    i, j, k = (_AXIS[a] for a in order)
+    i, j, k = ("XYZ".index(a) for a in order)
     e = 1.0 if (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0   # parity of the axis order
     mid = np.arcsin(np.clip(e * rot[..., i, k], -1.0, 1.0))
     first = np.arctan2(-e * rot[..., j, k], rot[..., k, k])
@@ -229,27 +204,21 @@ def _continuous_euler(rot: np.ndarray, order: str) -> np.ndarray:
         prev = out[t - 1] if t else np.zeros_like(out[0])
         if locked[t].any():  # keep the previous `last` angle and solve `first` from what is left
             n = np.flatnonzero(locked[t])
-            rest = rot[t, n] @ np.swapaxes(_axis_rotation(k, prev[n, 2]), -1, -2)  # = R_i(first) R_j(mid)
+            rest = rot[t, n] @ np.swapaxes(_axis_angle(np.eye(3)[k], prev[n, 2]), -1, -2)  # = R_i(first) R_j(mid)
             out[t, n, 0] = np.arctan2(e * rest[:, k, j], rest[:, j, j])
             out[t, n, 2] = prev[n, 2]
         if t == 0:
             continue
         a = out[t]
         b = np.stack([a[:, 0] + np.pi, np.pi - a[:, 1], a[:, 2] + np.pi], -1)  # the same rotation
-        a = a + two_pi * np.round((prev - a) / two_pi)
-        b = b + two_pi * np.round((prev - b) / two_pi)
+        a, b = (x + two_pi * np.round((prev - x) / two_pi) for x in (a, b))    # unwrapped to near the last frame
         pick_b = ((b - prev) ** 2).sum(-1) < ((a - prev) ** 2).sum(-1)
         out[t] = np.where(pick_b[:, None], b, a)
     return out
 
 
-def _axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotations by angle[n] about coordinate axis `axis`."""
-    return _axis_angle(np.eye(3)[axis], np.asarray(angle, dtype=np.float64))
-
-
 # ----------------------------------------------------------------------------------------------------
-# text and files
+# text
 
 def _format(pos, offsets, euler, skeleton: Skeleton, fps: float, scale: float) -> str:
     names = skeleton.joint_names
@@ -257,9 +226,8 @@ def _format(pos, offsets, euler, skeleton: Skeleton, fps: float, scale: float) -
         if not n or any(c.isspace() for c in n):
             raise ValueError(f"skeleton {skeleton.name!r}: joint name {n!r} cannot be written to BVH "
                              f"(empty or has spaces)")
-    children = _children(skeleton)
+    children = skeleton.children
     lines = ["HIERARCHY"]
-    order: list[int] = []
 
     def vec(v) -> str:
         return " ".join(f"{c:.6f}" for c in v)
@@ -267,84 +235,22 @@ def _format(pos, offsets, euler, skeleton: Skeleton, fps: float, scale: float) -
     def joint(j: int, depth: int) -> None:
         ind = "\t" * depth
         root = skeleton.parents[j] < 0
-        lines.append(f"{ind}{'ROOT' if root else 'JOINT'} {names[j]}")
-        lines.append(f"{ind}{{")
-        lines.append(f"{ind}\tOFFSET {vec(np.zeros(3) if root else offsets[j] * scale)}")
         chans = "CHANNELS 6 Xposition Yposition Zposition " if root else "CHANNELS 3 "
-        lines.append(f"{ind}\t{chans}{_channels(ROOT_ORDER if root else JOINT_ORDER)}")
-        order.append(j)
+        rots = " ".join(f"{a}rotation" for a in (ROOT_ORDER if root else JOINT_ORDER))
+        lines.extend([f"{ind}{'ROOT' if root else 'JOINT'} {names[j]}", f"{ind}{{",
+                      f"{ind}\tOFFSET {vec(np.zeros(3) if root else offsets[j] * scale)}", f"{ind}\t{chans}{rots}"])
         for c in children[j]:
             joint(c, depth + 1)
         if not children[j]:
             # Half the incoming bone, along it: gives the leaf bone a visible length in viewers.
-            lines.append(f"{ind}\tEnd Site")
-            lines.append(f"{ind}\t{{")
-            lines.append(f"{ind}\t\tOFFSET {vec(offsets[j] * 0.5 * scale)}")
-            lines.append(f"{ind}\t}}")
+            lines.extend([f"{ind}\tEnd Site", f"{ind}\t{{", f"{ind}\t\tOFFSET {vec(offsets[j] * 0.5 * scale)}",
+                          f"{ind}\t}}"])
         lines.append(f"{ind}}}")
 
-    joint(_root(skeleton), 0)
+    root = skeleton.root
+    joint(root, 0)
     lines += ["MOTION", f"Frames: {len(pos)}", f"Frame Time: {1.0 / fps:.8f}"]
-    root = _root(skeleton)
-    values = np.concatenate([pos[:, root] * scale, euler[:, order].reshape(len(pos), -1)], axis=1)
+    # Channels in the hierarchy's order, which is depth first from the root.
+    values = np.concatenate([pos[:, root] * scale, euler[:, skeleton.depth_first()].reshape(len(pos), -1)], axis=1)
     lines += [" ".join(f"{v:.6f}" for v in row) for row in values]
     return "\n".join(lines) + "\n"
-
-
-def _channels(order: str) -> str:
-    return " ".join(f"{a}rotation" for a in order)
-
-
-# ----------------------------------------------------------------------------------------------------
-# checks and skeleton helpers
-
-def _check_fps(fps) -> float:
-    try:
-        value = float(fps)
-    except (TypeError, ValueError):
-        value = float("nan")
-    if not (np.isfinite(value) and value > 0):
-        raise ValueError(f"fps must be a positive number, got {fps!r}")
-    return value
-
-
-def _check_joints(joints, skeleton: Skeleton) -> np.ndarray:
-    try:
-        pos = np.asarray(joints, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"joints must be a numeric array of shape (T, J, 3): {e}") from None
-    J = skeleton.num_joints
-    if pos.ndim != 3 or pos.shape[1:] != (J, 3) or pos.shape[0] < 1:
-        raise ValueError(f"joints must have shape (T, {J}, 3) for skeleton {skeleton.name!r} "
-                         f"(T >= 1 frames, metres), got {pos.shape}")
-    bad = ~np.isfinite(pos)
-    if bad.any():
-        t, j, _ = np.argwhere(bad)[0]
-        raise ValueError(f"joints contain NaN or inf ({int(bad.any(-1).sum())} joint positions), first at "
-                         f"frame {t} joint {j} ({skeleton.joint_names[j]})")
-    return pos
-
-
-def _children(skeleton: Skeleton) -> list[list[int]]:
-    children: list[list[int]] = [[] for _ in skeleton.parents]
-    for j, p in enumerate(skeleton.parents):
-        if p >= 0:
-            children[p].append(j)
-    return children
-
-
-def _root(skeleton: Skeleton) -> int:
-    roots = [j for j, p in enumerate(skeleton.parents) if p < 0]
-    if len(roots) != 1:
-        raise ValueError(f"skeleton {skeleton.name!r} must have exactly one root, has {len(roots)}")
-    return roots[0]
-
-
-def _dfs_order(skeleton: Skeleton) -> list[int]:
-    children = _children(skeleton)
-    order, stack = [], [_root(skeleton)]
-    while stack:
-        j = stack.pop()
-        order.append(j)
-        stack.extend(reversed(children[j]))
-    return order

@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import accumulate
 from pathlib import Path
 
 import numpy as np
 
-from .quaternion import cont6d_to_matrix, qinv, qrot, quaternion_to_matrix
+from .quaternion import qinv, qrot
 
 _FIELDS = ("root_rot_vel", "root_lin_vel", "root_y", "ric", "rot6d", "local_vel", "foot_contact")
 
@@ -36,13 +37,6 @@ class FeatureLayout:
     def for_skeleton(cls, skeleton) -> "FeatureLayout":
         return cls(skeleton.num_joints)
 
-    @classmethod
-    def for_dim(cls, dim: int) -> "FeatureLayout":
-        """The layout whose vector has `dim` values (D = 12J - 1)."""
-        if (dim + 1) % 12 or dim < 23:
-            raise ValueError(f"no feature layout has dim {dim} (dims are 12*J - 1, e.g. 263, 251)")
-        return cls((dim + 1) // 12)
-
     def _sizes(self) -> tuple[int, ...]:
         j = self.num_joints
         return (1, 2, 1, (j - 1) * 3, (j - 1) * 6, j * 3, 4)
@@ -53,11 +47,8 @@ class FeatureLayout:
 
     def slices(self) -> dict[str, slice]:
         """Field name -> slice of the feature vector, in storage order."""
-        out, start = {}, 0
-        for name, size in zip(_FIELDS, self._sizes()):
-            out[name] = slice(start, start + size)
-            start += size
-        return out
+        bounds = list(accumulate(self._sizes(), initial=0))
+        return {name: slice(a, b) for name, a, b in zip(_FIELDS, bounds, bounds[1:])}
 
     root_rot_vel = property(lambda self: self.slices()["root_rot_vel"])
     root_lin_vel = property(lambda self: self.slices()["root_lin_vel"])
@@ -69,32 +60,8 @@ class FeatureLayout:
 
     def to_dict(self) -> dict:
         """JSON-friendly form for manifests: {"num_joints", "dim", "slices": {name: [start, stop]}}."""
-        return {
-            "num_joints": int(self.num_joints),
-            "dim": self.dim,
-            "slices": {k: [s.start, s.stop] for k, s in self.slices().items()},
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "FeatureLayout":
-        """Inverse of `to_dict`; raises if the stored dim or slices disagree with this code's layout."""
-        try:
-            layout = cls(int(d["num_joints"]))
-        except (KeyError, TypeError) as e:
-            raise ValueError(f"feature layout needs 'num_joints', got {d!r}") from e
-        if "dim" in d and int(d["dim"]) != layout.dim:
-            raise ValueError(f"feature layout: dim {d['dim']} does not match {layout.num_joints} joints ({layout.dim})")
-        if "slices" in d and layout.to_dict()["slices"] != {k: list(v) for k, v in d["slices"].items()}:
-            raise ValueError(f"feature layout: slices {d['slices']} differ from this runtime's layout")
-        return layout
-
-
-def _as_features(features, num_joints: int) -> np.ndarray:
-    x = np.asarray(features)
-    layout = FeatureLayout(num_joints)
-    if x.ndim < 2 or x.shape[-1] != layout.dim:
-        raise ValueError(f"features must be (..., T, {layout.dim}) for {num_joints} joints, got {x.shape}")
-    return x
+        return {"num_joints": int(self.num_joints), "dim": self.dim,
+                "slices": {k: [s.start, s.stop] for k, s in self.slices().items()}}
 
 
 def recover_root_rot_pos(features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -125,7 +92,10 @@ def recover_from_ric(features: np.ndarray, num_joints: int) -> np.ndarray:
 
     Computed in float64; returns the input's float dtype (float32 for anything not floating).
     """
-    x = _as_features(features, num_joints)
+    x = np.asarray(features)
+    dim = FeatureLayout(num_joints).dim
+    if x.ndim < 2 or x.shape[-1] != dim:
+        raise ValueError(f"features must be (..., T, {dim}) for {num_joints} joints, got {x.shape}")
     out_dtype = x.dtype if x.dtype.kind == "f" else np.float32
     r_quat, r_pos = recover_root_rot_pos(x)
     ric = np.asarray(x[..., 4:4 + (num_joints - 1) * 3], dtype=np.float64)
@@ -134,42 +104,6 @@ def recover_from_ric(features: np.ndarray, num_joints: int) -> np.ndarray:
     pos[..., 0] += r_pos[..., None, 0]
     pos[..., 2] += r_pos[..., None, 2]
     joints = np.concatenate([r_pos[..., None, :], pos], axis=-2)  # (..., T, J, 3)
-    return joints.astype(out_dtype)
-
-
-def local_rotations(features: np.ndarray, num_joints: int) -> np.ndarray:
-    """(..., T, D) -> (..., T, J, 3, 3): joint 0 the root facing, joint k its rot6d rotation (parent frame).
-
-    Composing them down a kinematic chain maps each rest bone direction (Skeleton.raw_offsets) onto
-    the bone's world direction; `recover_from_rot` does exactly that.
-    """
-    x = _as_features(features, num_joints)
-    r_quat, _ = recover_root_rot_pos(x)
-    rot6d = np.asarray(x[..., FeatureLayout(num_joints).rot6d], dtype=np.float64)
-    rot6d = rot6d.reshape(rot6d.shape[:-1] + (num_joints - 1, 6))
-    # the facing quaternion itself, not its inverse: rot6d of a chain's first joint already holds it inverted
-    root = quaternion_to_matrix(r_quat)[..., None, :, :]          # (..., T, 1, 3, 3)
-    return np.concatenate([root, cont6d_to_matrix(rot6d)], axis=-3)
-
-
-def recover_from_rot(features: np.ndarray, skeleton) -> np.ndarray:
-    """(..., T, D) -> (..., T, J, 3) by forward kinematics of the rot6d rotations on `skeleton`'s bones.
-
-    As HumanML3D's `recover_from_rot`. Unlike `recover_from_ric` it keeps bone lengths exactly those of
-    the skeleton; on dataset features both agree to about a millimetre.
-    """
-    x = _as_features(features, skeleton.num_joints)
-    out_dtype = x.dtype if x.dtype.kind == "f" else np.float32
-    rot = local_rotations(x, skeleton.num_joints)                 # (..., T, J, 3, 3)
-    _, r_pos = recover_root_rot_pos(x)
-    offsets = np.asarray(skeleton.offsets, dtype=np.float64)      # (J, 3)
-    joints = np.zeros(rot.shape[:-2] + (3,))
-    joints[..., 0, :] = r_pos
-    for chain in skeleton.kinematic_chain:
-        m = rot[..., 0, :, :]
-        for parent, child in zip(chain[:-1], chain[1:]):
-            m = m @ rot[..., child, :, :]
-            joints[..., child, :] = (m @ offsets[child]) + joints[..., parent, :]
     return joints.astype(out_dtype)
 
 

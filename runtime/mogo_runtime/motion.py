@@ -50,15 +50,9 @@ class Motion:
 
     def to_dict(self) -> dict:
         """The `.json` file's content: fps, skeleton, joint positions per frame (metres, 0.1 mm)."""
-        return {
-            "text": self.text,
-            "aligned_text": self.aligned_text,
-            "seed": int(self.seed),
-            "fps": float(self.fps),
-            "num_frames": self.num_frames,
-            "skeleton": self.skeleton.to_dict(),
-            "frames": np.round(np.asarray(self.joints, np.float64), JSON_DECIMALS).tolist(),
-        }
+        return {"text": self.text, "aligned_text": self.aligned_text, "seed": int(self.seed), "fps": float(self.fps),
+                "num_frames": self.num_frames, "skeleton": self.skeleton.to_dict(),
+                "frames": np.round(np.asarray(self.joints, np.float64), JSON_DECIMALS).tolist()}
 
     def save(self, path: str | Path) -> Path:
         """Write the motion in the format its extension names (see SAVE_FORMATS); returns the path."""
@@ -72,12 +66,10 @@ class Motion:
         elif suffix == ".bvh":   # the writers below replace their file atomically themselves
             from .bvh import write_bvh
             write_bvh(path, self.joints, self.skeleton, fps=self.fps)
-        elif suffix == ".gif":
-            from .preview import render_gif
-            render_gif(path, self.joints, self.skeleton, fps=self.fps, title=self.text)
-        else:  # .mp4
-            from .preview import render_mp4
-            render_mp4(path, self.joints, self.skeleton, fps=self.fps, title=self.text)
+        else:  # .gif, .mp4
+            from .preview import render_gif, render_mp4
+            render = render_gif if suffix == ".gif" else render_mp4
+            render(path, self.joints, self.skeleton, fps=self.fps, title=self.text)
         return path
 
 
@@ -125,7 +117,7 @@ class RootIntegrator:
         self.num_joints = num_joints
         self.angle = 0.0                      # half-angle of the root's facing about y, as in the features
         self.position = np.zeros(2)           # root x, z
-        self.previous: np.ndarray | None = None   # (rot_vel, vel_x, vel_z) of the last frame seen
+        self.previous = np.zeros(3)           # (rot_vel, vel_x, vel_z) of the last frame seen: frame 0 stays put
 
     def push(self, features: np.ndarray) -> np.ndarray:
         """features (n, D) of the next n frames -> joints (n, J, 3), in the features' float dtype."""
@@ -137,15 +129,12 @@ class RootIntegrator:
         J = self.num_joints
         joints = np.empty((len(x), J, 3))
         for i, frame in enumerate(x64):
-            if self.previous is not None:
-                rot_vel, vx, vz = self.previous
-                self.angle += rot_vel
-                c, s = np.cos(self.angle), np.sin(self.angle)
-                # qrot(qinv(q(angle)), v) for v = (vx, 0, vz): a rotation by -2*angle about y
-                cos2, sin2 = c * c - s * s, 2 * c * s
-                self.position += (cos2 * vx - sin2 * vz, sin2 * vx + cos2 * vz)
+            rot_vel, vx, vz = self.previous
+            self.angle += rot_vel
             c, s = np.cos(self.angle), np.sin(self.angle)
+            # qrot(qinv(q(angle)), v) for v = (vx, 0, vz): a rotation by -2*angle about y
             cos2, sin2 = c * c - s * s, 2 * c * s
+            self.position += (cos2 * vx - sin2 * vz, sin2 * vx + cos2 * vz)
             ric = frame[4:4 + (J - 1) * 3].reshape(J - 1, 3)
             joints[i, 0] = (self.position[0], frame[3], self.position[1])
             joints[i, 1:, 0] = cos2 * ric[:, 0] - sin2 * ric[:, 2] + self.position[0]

@@ -20,7 +20,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from .files import temp_path, write_atomic
-from .skeleton import HUMANML3D, Skeleton
+from .skeleton import HUMANML3D, Skeleton, check_fps
 
 # Palette indices and colours.
 BG, GRID, PATH, SHADOW, CENTRE, LEFT, RIGHT, TEXT, HEAD = range(9)
@@ -52,8 +52,7 @@ def render_gif(path, joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, 
                size: tuple[int, int] = (320, 320), camera: Camera = Camera()) -> Path:
     """Write an animated GIF of `joints` (T, J, 3) metres at `fps` (atomically). Returns the path.
     GIF stores frame times in 1/100 s, so the frame time is 1000/fps ms rounded down to 10 ms."""
-    frames = render_frames(joints, skeleton, fps, title, size, camera)
-    return _save_gif(Path(path), frames, fps)
+    return _save_gif(Path(path), render_frames(joints, skeleton, fps, title, size, camera), fps)
 
 
 def render_grid_gif(path, motions, skeleton: Skeleton = HUMANML3D, fps: float = 20.0,
@@ -136,11 +135,17 @@ class _Scene:
         self.small = _font(max(8, round(min(W, H) / 30)))
         self.title_lines = _wrap(title or "", self.font, W - 8, max_lines=2)
         self.top = 6 + len(self.title_lines) * (self.font.size + 3) if self.title_lines else 4
-        self.side = _sides(skeleton)
-        self.head = _head_joint(skeleton)
+        rest = _rest_positions(skeleton)
+        # +1 for the body's left (rest-pose x > 0, the body facing +z), -1 for right, 0 on the midline
+        self.side = [int(np.sign(x)) if abs(x) > 1e-6 else 0 for x in rest[:, 0]]
+        # the highest leaf on the midline in the rest pose (HumanML3D's head, KIT's upper neck)
+        leaves = [j for j in range(skeleton.num_joints) if j not in skeleton.parents and abs(rest[j, 0]) < 1e-6]
+        self.head = max(leaves, key=lambda j: rest[j, 1]) if leaves else None
         self.bones = [(p, j) for j, p in enumerate(skeleton.parents) if p >= 0]
 
         self.floor = float(pos[..., 1].min())
+        self.ground = pos[:, 0].copy()                  # the root's path on the floor
+        self.ground[:, 1] = self.floor
         lo, hi = pos[..., [0, 2]].reshape(-1, 2).min(0), pos[..., [0, 2]].reshape(-1, 2).max(0)
         step = camera.grid_step
         self.grid_lo = np.floor((lo - 0.75) / step) * step
@@ -166,9 +171,7 @@ class _Scene:
         """Choose zoom and centring so every joint of every frame and the root path fit. Returns that zoom
         as pixels per metre at the scene's centre; pass `px_per_m` to impose one (shared in grids)."""
         W, H = self.size
-        ground = np.concatenate([self.pos[:, 0, :1], np.full((len(self.pos), 1), self.floor),
-                                 self.pos[:, 0, 2:]], 1)
-        xy, _ = self._camera(np.concatenate([self.pos.reshape(-1, 3), ground]))
+        xy, _ = self._camera(np.concatenate([self.pos.reshape(-1, 3), self.ground]))
         lo, hi = xy.min(0), xy.max(0)
         margin = 0.06 * min(W, H)
         avail = np.array([W - 2 * margin, H - 2 * margin - self.top - self.small.size])
@@ -188,32 +191,23 @@ class _Scene:
     def _background(self) -> Image.Image:
         img = _new_image(self.size)
         draw = ImageDraw.Draw(img)
-        (x0, z0), (x1, z1) = self.grid_lo, self.grid_hi
-        step = self.cam.grid_step
-        for x in np.arange(x0, x1 + step / 2, step):
-            self._line3(draw, [x, self.floor, z0], [x, self.floor, z1], GRID, 1)
-        for z in np.arange(z0, z1 + step / 2, step):
-            self._line3(draw, [x0, self.floor, z], [x1, self.floor, z], GRID, 1)
-        path = self.pos[:, 0].copy()
-        path[:, 1] = self.floor
-        if len(path) > 1:
-            draw.line([tuple(q) for q in self._project(path)[0]], fill=PATH, width=max(1, self.line // 2))
+        (x0, z0), (x1, z1), y, step = self.grid_lo, self.grid_hi, self.floor, self.cam.grid_step
+        for ends in ([[[x, y, z0], [x, y, z1]] for x in np.arange(x0, x1 + step / 2, step)]
+                     + [[[x0, y, z], [x1, y, z]] for z in np.arange(z0, z1 + step / 2, step)]):
+            (pa, pb), _ = self._project(np.array(ends, dtype=np.float64))
+            draw.line([tuple(pa), tuple(pb)], fill=GRID, width=1)
+        if len(self.ground) > 1:
+            draw.line([tuple(q) for q in self._project(self.ground)[0]], fill=PATH, width=max(1, self.line // 2))
         for n, text in enumerate(self.title_lines):
             draw.text((4, 4 + n * (self.font.size + 3)), text, fill=TEXT, font=self.font)
         return img
-
-    def _line3(self, draw, a, b, colour, width):
-        (pa, pb), _ = self._project(np.array([a, b], dtype=np.float64))
-        draw.line([tuple(pa), tuple(pb)], fill=colour, width=width)
 
     def frame(self, t: int) -> Image.Image:
         img = self.background.copy()
         draw = ImageDraw.Draw(img)
         px, depth = self.px[t], self.depth[t]
         # Shadow under the root, squashed by the view's elevation.
-        ground = self.pos[t, 0].copy()
-        ground[1] = self.floor
-        (gx, gy), gd = self._project(ground)
+        (gx, gy), gd = self._project(self.ground[t])
         r = self.scale * 0.18 / gd
         rv = r * max(0.25, np.sin(np.radians(self.cam.elevation_deg)))
         draw.ellipse([gx - r, gy - rv, gx + r, gy + rv], fill=SHADOW)
@@ -236,37 +230,11 @@ class _Scene:
 
 def _rest_positions(skeleton: Skeleton) -> np.ndarray:
     rest = np.zeros((skeleton.num_joints, 3))
-    for j in _parents_first(skeleton):
+    for j in skeleton.depth_first():
         p = skeleton.parents[j]
         if p >= 0:
             rest[j] = rest[p] + skeleton.offsets[j]
     return rest
-
-
-def _sides(skeleton: Skeleton) -> list[int]:
-    """+1 for the body's left (rest-pose x > 0, the body facing +z), -1 for right, 0 on the midline."""
-    return [int(np.sign(x)) if abs(x) > 1e-6 else 0 for x in _rest_positions(skeleton)[:, 0]]
-
-
-def _head_joint(skeleton: Skeleton) -> int | None:
-    """The highest leaf on the midline in the rest pose (HumanML3D's head, KIT's upper neck)."""
-    rest = _rest_positions(skeleton)
-    leaves = [j for j in range(skeleton.num_joints) if j not in skeleton.parents and abs(rest[j, 0]) < 1e-6]
-    return max(leaves, key=lambda j: rest[j, 1]) if leaves else None
-
-
-def _parents_first(skeleton: Skeleton) -> list[int]:
-    order, seen = [], set()
-    while len(order) < skeleton.num_joints:
-        added = False
-        for j, p in enumerate(skeleton.parents):
-            if j not in seen and (p < 0 or p in seen):
-                order.append(j)
-                seen.add(j)
-                added = True
-        if not added:
-            raise ValueError(f"skeleton {skeleton.name!r} parents do not form a tree")
-    return order
 
 
 def _font(size: int):
@@ -309,24 +277,7 @@ def _save_gif(path: Path, frames: list[Image.Image], fps: float) -> Path:
 
 
 def _check(joints, skeleton: Skeleton, fps, size, what: str = "joints") -> np.ndarray:
-    try:
-        ok = np.isfinite(float(fps)) and float(fps) > 0
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise ValueError(f"fps must be a positive number, got {fps!r}")
+    check_fps(fps)
     if not (isinstance(size, (tuple, list)) and len(size) == 2 and all(isinstance(s, int) and s >= 64 for s in size)):
         raise ValueError(f"size must be (width, height) in pixels, each an int >= 64, got {size!r}")
-    try:
-        pos = np.asarray(joints, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{what} must be a numeric array of shape (T, J, 3): {e}") from None
-    J = skeleton.num_joints
-    if pos.ndim != 3 or pos.shape[1:] != (J, 3) or pos.shape[0] < 1:
-        raise ValueError(f"{what} must have shape (T, {J}, 3) for skeleton {skeleton.name!r} "
-                         f"(T >= 1 frames, metres), got {pos.shape}")
-    bad = ~np.isfinite(pos)
-    if bad.any():
-        t, j, _ = np.argwhere(bad)[0]
-        raise ValueError(f"{what} contain NaN or inf, first at frame {t} joint {j} ({skeleton.joint_names[j]})")
-    return pos
+    return skeleton.check_joints(joints, what)

@@ -23,7 +23,6 @@ class Skeleton:
     foot_right: tuple[int, int]         # (ankle, toe) joints used for foot contact
     foot_left: tuple[int, int]
     face_joints: tuple[int, int, int, int]  # right hip, left hip, right shoulder, left shoulder
-    leg_joints: tuple[int, int]         # (knee-ish, ankle-ish) of one leg, sets the floor height
     fps: float = 20.0
 
     @property
@@ -35,17 +34,47 @@ class Skeleton:
         """(J, 3) rest-pose bone vectors: direction times length."""
         return self.raw_offsets * self.bone_lengths[:, None]
 
+    @property
+    def children(self) -> list[list[int]]:
+        return [[j for j, p in enumerate(self.parents) if p == i] for i in range(self.num_joints)]
+
+    @property
+    def root(self) -> int:
+        roots = [j for j, p in enumerate(self.parents) if p < 0]
+        if len(roots) != 1:
+            raise ValueError(f"skeleton {self.name!r} must have exactly one root, has {len(roots)}")
+        return roots[0]
+
+    def depth_first(self) -> list[int]:
+        """Every joint, parents before children: depth first from the root, children in joint order."""
+        children, order, stack = self.children, [], [self.root]
+        while stack:
+            order.append(stack.pop())
+            stack.extend(reversed(children[order[-1]]))
+        return order
+
+    def check_joints(self, joints, what: str = "joints", count: bool = False) -> np.ndarray:
+        """`joints` (T, J, 3) in metres as float64, or a ValueError naming the problem (with `count`: how many
+        joint positions are not finite)."""
+        try:
+            pos = np.asarray(joints, dtype=np.float64)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{what} must be a numeric array of shape (T, J, 3): {e}") from None
+        J = self.num_joints
+        if pos.ndim != 3 or pos.shape[1:] != (J, 3) or pos.shape[0] < 1:
+            raise ValueError(f"{what} must have shape (T, {J}, 3) for skeleton {self.name!r} "
+                             f"(T >= 1 frames, metres), got {pos.shape}")
+        bad = ~np.isfinite(pos)
+        if bad.any():
+            t, j, _ = np.argwhere(bad)[0]
+            n = f" ({int(bad.any(-1).sum())} joint positions)" if count else ""
+            raise ValueError(f"{what} contain NaN or inf{n}, first at frame {t} joint {j} ({self.joint_names[j]})")
+        return pos
+
     def to_dict(self) -> dict:
         """JSON-friendly description, as stored in bundle manifests and motion files."""
-        return {
-            "name": self.name,
-            "joint_names": list(self.joint_names),
-            "parents": list(self.parents),
-            "offsets": np.round(self.offsets, 6).tolist(),
-            "fps": self.fps,
-            "up_axis": "y",
-            "units": "m",
-        }
+        return {"name": self.name, "joint_names": list(self.joint_names), "parents": list(self.parents),
+                "offsets": np.round(self.offsets, 6).tolist(), "fps": self.fps, "up_axis": "y", "units": "m"}
 
 
 def _parents_from_chains(num_joints: int, chains) -> tuple[int, ...]:
@@ -69,19 +98,11 @@ _T2M_LENGTHS = np.array([
 
 HUMANML3D = Skeleton(
     name="humanml3d",
-    joint_names=("pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-                 "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar",
-                 "right_collar", "head", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
-                 "left_wrist", "right_wrist"),
-    parents=_parents_from_chains(22, _T2M_CHAIN),
-    kinematic_chain=_T2M_CHAIN,
-    raw_offsets=_T2M_RAW,
-    bone_lengths=_T2M_LENGTHS,
-    foot_right=(8, 11),
-    foot_left=(7, 10),
-    face_joints=(2, 1, 17, 16),
-    leg_joints=(5, 8),
-)
+    joint_names=("pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2", "left_ankle",
+                 "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar", "right_collar", "head",
+                 "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist"),
+    parents=_parents_from_chains(22, _T2M_CHAIN), kinematic_chain=_T2M_CHAIN, raw_offsets=_T2M_RAW,
+    bone_lengths=_T2M_LENGTHS, foot_right=(8, 11), foot_left=(7, 10), face_joints=(2, 1, 17, 16))
 
 _KIT_CHAIN = ((0, 11, 12, 13, 14, 15), (0, 16, 17, 18, 19, 20), (0, 1, 2, 3, 4), (3, 5, 6, 7), (3, 8, 9, 10))
 _KIT_RAW = np.array([
@@ -95,21 +116,22 @@ _KIT_LENGTHS = np.array([
     0.10, 0.42, 0.40, 0.06, 0.12])
 
 KIT = Skeleton(
-    name="kit",
-    joint_names=("root", "bp", "bt", "bln", "bun", "ls", "le", "lw", "rs", "re", "rw", "lh", "lk", "la",
-                 "lmrot", "lf", "rh", "rk", "ra", "rmrot", "rf"),
-    parents=_parents_from_chains(21, _KIT_CHAIN),
-    kinematic_chain=_KIT_CHAIN,
-    raw_offsets=_KIT_RAW,
-    bone_lengths=_KIT_LENGTHS,
-    foot_right=(14, 15),
-    foot_left=(19, 20),
-    face_joints=(11, 16, 5, 8),
-    leg_joints=(17, 18),
-    fps=12.5,
-)
+    name="kit", joint_names=("root", "bp", "bt", "bln", "bun", "ls", "le", "lw", "rs", "re", "rw", "lh", "lk", "la",
+                             "lmrot", "lf", "rh", "rk", "ra", "rmrot", "rf"),
+    parents=_parents_from_chains(21, _KIT_CHAIN), kinematic_chain=_KIT_CHAIN, raw_offsets=_KIT_RAW,
+    bone_lengths=_KIT_LENGTHS, foot_right=(14, 15), foot_left=(19, 20), face_joints=(11, 16, 5, 8), fps=12.5)
 
 SKELETONS = {s.name: s for s in (HUMANML3D, KIT)}
+
+
+def check_fps(fps) -> float:
+    try:
+        value = float(fps)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"fps must be a positive number, got {fps!r}")
+    return value
 
 
 def get_skeleton(name: str) -> Skeleton:

@@ -2,8 +2,7 @@
 import numpy as np
 import pytest
 
-from mogo_runtime.features import (FeatureLayout, denormalize, load_mean_std, local_rotations, normalize,
-                                   recover_from_ric, recover_from_rot)
+from mogo_runtime.features import FeatureLayout, denormalize, load_mean_std, normalize, recover_from_ric
 from mogo_runtime.skeleton import HUMANML3D, KIT
 
 
@@ -23,12 +22,7 @@ def test_layout_matches_humanml3d_and_kit():
     stops = [s.stop for s in k.slices().values()]
     starts = [s.start for s in k.slices().values()]
     assert starts == [0] + stops[:-1] and stops[-1] == 251  # contiguous, covers the vector
-    assert FeatureLayout.from_dict(h.to_dict()) == h and FeatureLayout.for_dim(251) == k
-    bad = h.to_dict() | {"dim": 251}
-    with pytest.raises(ValueError, match="dim 251"):
-        FeatureLayout.from_dict(bad)
-    with pytest.raises(ValueError, match="no feature layout"):
-        FeatureLayout.for_dim(262)
+    assert h.to_dict()["slices"]["foot_contact"] == [259, 263] and k.to_dict()["dim"] == 251
 
 
 def test_recover_from_ric_reproduces_dataset_joints(clip):
@@ -50,15 +44,11 @@ def test_recover_from_ric_batched_and_float64(clip):
     np.testing.assert_allclose(got[1], recover_from_ric(feats[::-1], 22), atol=1e-5)
 
 
-def test_recover_from_rot_agrees_via_skeleton_bones(clip):
-    feats, joints = clip
-    got = recover_from_rot(feats, HUMANML3D)
-    err = np.abs(got - joints).max()
-    print(f"\nrecover_from_rot: max |error| {err:.3g} m")
-    assert err < 1e-4
-    rots = local_rotations(feats, 22)
-    assert rots.shape == (len(feats), 22, 3, 3)
-    np.testing.assert_allclose(np.linalg.det(rots), 1.0, atol=1e-5)
+def test_skeleton_bone_lengths_are_the_fixture_clips(clip):
+    """HUMANML3D.bone_lengths were measured on this clip: every frame has them (HumanML3D retargets all clips)."""
+    _, joints = clip
+    lengths = np.linalg.norm(joints[:, 1:] - joints[:, list(HUMANML3D.parents[1:])], axis=-1)
+    np.testing.assert_allclose(lengths, np.broadcast_to(HUMANML3D.bone_lengths[1:], lengths.shape), atol=2e-6)
 
 
 def test_recover_rejects_mismatched_dim(clip):

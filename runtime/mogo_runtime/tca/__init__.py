@@ -8,27 +8,23 @@ offline, from the bundle (docs/tca.md):
     aligner = OfflineAligner(bundle, text_session)          # bundle has captions.npz (manifest section "tca")
     aligner.align("guy starts jogging real quick, then sits").text   # 'a person jogs ... and then sits down.'
 
-    base.py      Aligner, AlignedPrompt, apply_alignment: the interface the generator uses
-    index.py     CaptionIndex: the captions.npz format ("mogo-caption-index"), shared with the exporter
-    lexicon.py   the wording normaliser's words and patterns (data)
-    wording.py   WordingNormalizer: prompt -> caption-style clauses; sentence, strip_subject, caption_verbs
-    offline.py   OfflineAligner: each clause -> its nearest training caption
-    rewriter.py  ChatRewriter: an external chat model, falling back to the offline aligner; opt-in
-
-Names load on first use (PEP 562): `import mogo_runtime.tca` reads no submodule, `Aligner` reads base.py only,
-and only code asking for `ChatRewriter` reads the rewriter.
+Modules: base.py, the interface the generator uses (Aligner, AlignedPrompt, apply_alignment); index.py, CaptionIndex
+and the captions.npz format ("mogo-caption-index") shared with the exporter; lexicon.py, the wording normaliser's
+words and patterns (data); wording.py, WordingNormalizer (prompt -> caption-style clauses) and the caption helpers
+sentence, strip_subject, caption_verbs; offline.py, OfflineAligner (each clause -> its nearest training caption);
+rewriter.py, ChatRewriter (an external chat model, falling back to the offline aligner; opt-in). Names load on
+first use (PEP 562): `import mogo_runtime.tca` reads no submodule, `Aligner` reads base.py only, and only code
+asking for `ChatRewriter` reads the rewriter.
 """
 from __future__ import annotations
 
 import importlib
 from typing import TYPE_CHECKING
 
-_HOME = {"AlignedPrompt": "base", "Aligner": "base", "apply_alignment": "base",
-         "CaptionIndex": "index", "INDEX_FORMAT": "index", "INDEX_VERSION": "index", "load_bundle_index": "index",
-         "quantize_rows": "index",
+_HOME = {"AlignedPrompt": "base", "Aligner": "base", "apply_alignment": "base", "CaptionIndex": "index",
+         "INDEX_FORMAT": "index", "INDEX_VERSION": "index", "load_bundle_index": "index", "quantize_rows": "index",
          "WordingNormalizer": "wording", "caption_verbs": "wording", "sentence": "wording", "strip_subject": "wording",
-         "DEFAULTS": "offline", "OfflineAligner": "offline",
-         "ChatRewriter": "rewriter", "RewriterError": "rewriter"}
+         "DEFAULTS": "offline", "OfflineAligner": "offline", "ChatRewriter": "rewriter", "RewriterError": "rewriter"}
 __all__ = sorted(_HOME)
 
 

@@ -86,17 +86,14 @@ class CaptionIndex:
             if int(z["version"]) != INDEX_VERSION:
                 raise ValueError(f"{path}: caption index version {int(z['version'])}, this runtime reads "
                                  f"{INDEX_VERSION}")
-            rows = z["embeddings"]
+            rows = z["embeddings"]                  # the dtype names how they are stored: int8, float16, ...
+            emb = rows.astype(np.float32)
             if rows.dtype == np.int8:
                 if "scales" not in z.files:
                     raise ValueError(f"{path}: int8 embeddings without 'scales'")
-                emb, dtype = rows.astype(np.float32) * z["scales"][:, None], "int8"
-            elif rows.dtype == np.float16:
-                emb, dtype = rows.astype(np.float32), "float16"
-            else:
-                emb, dtype = rows.astype(np.float32), str(rows.dtype)
+                emb = emb * z["scales"][:, None]
             labels = [lb or None for lb in z["labels"].tolist()] if "labels" in z.files else None
-            return cls(z["captions"].tolist(), emb, labels, str(z["encoder"]), dtype)
+            return cls(z["captions"].tolist(), emb, labels, str(z["encoder"]), str(rows.dtype))
 
     def search(self, queries: np.ndarray, k: int, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(Q, dim) queries -> (indices (Q, k), cosine similarities (Q, k)), best first; `mask` (N,) restricts rows."""

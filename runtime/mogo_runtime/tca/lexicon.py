@@ -49,16 +49,13 @@ HELPERS = words("is are was were be been being am will would should shall can co
                 "tries tried want wants wanted need needs needed got get gets has have had just then now also "
                 "suddenly proceeds proceed decides decide decided continue continues continued please do does did "
                 "and gonna wanna gotta finally first next afterwards lastly again")
-# Multi-word fillers, removed in this order before single-word ones.
-FILLER_PHRASES = [r"\bcan you\b", r"\bcould you\b", r"\bwould you\b", r"\bwill you\b", r"\bi want\b",
-                  r"\bi would like\b", r"\bi need\b", r"\blets see\b", r"\bkind of\b", r"\bkinda\b", r"\bsort of\b",
-                  r"\bsorta\b", r"\ba bit\b", r"\ba little bit\b", r"\bfor me\b", r"\bfor a bit\b",
-                  r"\bfor a while\b", r"\bfor a sec(?:ond)?\b", r"\bright now\b", r"\bor something\b",
-                  r"\bor whatever\b", r"\byou know\b", r"\bi guess\b", r"\bi think\b", r"\bif you can\b",
-                  r"\bthank you\b", r"\bthanks\b", r"\bhere\b", r"\bthere\b", r"\bon (?:the )?(?:screen|camera)\b",
-                  r"\bin the (?:game|scene|animation|video)\b",
-                  r"\blike a (?:boss|pro|champ|maniac|madman|crazy person)\b", r"\ball of a sudden\b",
-                  r"\bnothing (?:fancy|special|crazy|complicated|else)\b"]
+# Multi-word fillers (regexes between word boundaries, ";"-separated), removed in this order before single words.
+FILLER_PHRASES = [rf"\b{p}\b" for p in (
+    "can you;could you;would you;will you;i want;i would like;i need;lets see;kind of;kinda;sort of;sorta;a bit;"
+    "a little bit;for me;for a bit;for a while;for a sec(?:ond)?;right now;or something;or whatever;you know;i guess;"
+    "i think;if you can;thank you;thanks;here;there;on (?:the )?(?:screen|camera);"
+    "in the (?:game|scene|animation|video);like a (?:boss|pro|champ|maniac|madman|crazy person);all of a sudden;"
+    "nothing (?:fancy|special|crazy|complicated|else)").split(";")]
 # Words that carry no motion: dropped anywhere.
 FILLERS = words("yo hey ok okay so um uh umm erm hmm like just pls plz please lol lmao rofl bro bruh fam ngl tbh fr "
                 "rn omg lil little some really real super totally literally basically actually very pretty quite "
@@ -75,27 +72,28 @@ DANGLING = words("the a an his her their my your ur its at to toward towards int
 
 
 # Multi-word rewrites into caption phrasing, applied in order before verbs are found (base forms; inflected later).
+_GO, _MOVE, _HEAD = "go|goes|went|going", "move|moves|moved|moving", "head|heads|headed|heading"
+_DO, _DO_MAKE, _GIVE = "do|does|did|doing", "do|does|did|doing|make|makes|made", "give|gives|gave|giving"
 PHRASES = [
     (r"\bback(?:s|ed|ing)? (?:it )?up\b", "walk backward"), (r"\bbackpedal(?:s|ed|ing|led|ling)?\b", "walk backward"),
-    (r"\b(?:go|goes|went|going|move|moves|moved|moving) (?:in reverse|backwards?)\b", "walk backward"),
-    (r"\breverse(?:s|d)?\b(?! order)", "walk backward"),
-    (r"\b(?:go|goes|went|going|move|moves|moved|moving|head|heads|headed|heading) back\b", "walk backward"),
+    (rf"\b(?:{_GO}|{_MOVE}) (?:in reverse|backwards?)\b", "walk backward"),
+    (r"\breverse(?:s|d)?\b(?! order)", "walk backward"), (rf"\b(?:{_GO}|{_MOVE}|{_HEAD}) back\b", "walk backward"),
     (r"\b(?:take|takes|took|taking|have|has|had|grab|grabs|grabbed) a (?:seat|chair|load off)\b", "sit down"),
     (r"\b(?:sit|sits|sat|sitting) (?:his|her|their|your|ur|my) (?:butt|ass|bum|self) down\b", "sit down"),
     (r"\bplop(?:s|ped|ping)?(?: down)?\b", "sit down"), (r"\bbe seated\b", "sit down"),
     (r"\b(?:say|says|said|saying) (?:hi|hello|hey|bye|goodbye|good bye|hiya|howdy)\b", "wave hello"),
-    (r"\b(?:give|gives|gave|giving) (?:a |an )?(?:friendly )?(?:wave|hello)\b", "wave"),
+    (rf"\b(?:{_GIVE}) (?:a |an )?(?:friendly )?(?:wave|hello)\b", "wave"),
     (r"\b(?:throw|throws|threw|throwing) (?:hands|fists|some hands|a few punches|punches|jabs)\b", "punch"),
-    (r"\b(?:round of )?applause\b", "clap"), (r"\b(?:give|gives|gave|giving) (?:a )?clap\b", "clap"),
-    (r"\b(?:do|does|did|doing|make|makes|made|pull|pulls|pulled|pulling) (?:a |an )?180\b", "turn around"),
-    (r"\b(?:do|does|did|doing|make|makes|made|pull|pulls|pulled|pulling) (?:a |an )?360\b", "spin around"),
-    (r"\b(?:do|does|did|doing|make|makes|made) (?:a |an )?90\b", "make a quarter turn"),
+    (r"\b(?:round of )?applause\b", "clap"), (rf"\b(?:{_GIVE}) (?:a )?clap\b", "clap"),
+    (rf"\b(?:{_DO_MAKE}|pull|pulls|pulled|pulling) (?:a |an )?180\b", "turn around"),
+    (rf"\b(?:{_DO_MAKE}|pull|pulls|pulled|pulling) (?:a |an )?360\b", "spin around"),
+    (rf"\b(?:{_DO_MAKE}) (?:a |an )?90\b", "make a quarter turn"),
     (r"\babout[- ]face\b", "turn around"), (r"\bu[- ]?turn\b", "turn around"),
-    (r"\b(?:go|goes|went|going|move|moves|moved|moving|run|runs|ran|running) (?:around |round )?in (?:a |one )?"
+    (rf"\b(?:{_GO}|{_MOVE}|run|runs|ran|running) (?:around |round )?in (?:a |one )?"
      r"(?:big |small |large |little |full |wide |tight )?(?:circle|loop|ring)s?\b", "walk in a circle"),
-    (r"\b(?:do|does|did|doing|walk|walks|walked|walking) (?:a )?(?:lap|loop)s?\b", "walk in a circle"),
+    (rf"\b(?:{_DO}|walk|walks|walked|walking) (?:a )?(?:lap|loop)s?\b", "walk in a circle"),
     (r"\bjumping jacks?\b", "jump in place"), (r"\bstar jumps?\b", "jump in place"),
-    (r"\b(?:do|does|did|doing|stand|stands|stood|standing) nothing\b", "stand still"),
+    (rf"\b(?:{_DO}|stand|stands|stood|standing) nothing\b", "stand still"),
     (r"\b(?:stay|stays|stayed|staying|stand|stands|stood|standing|wait|waits|waited|waiting|hang|hangs|hung|"
      r"hanging) (?:still|around|there|put|idle|in place)\b", "stand still"),
     (r"\b(?:chill|chills|chilled|chilling|chillin|vibe|vibes|vibed|vibing|idle|idles|idling|loiter|loiters|"
@@ -108,25 +106,22 @@ PHRASES = [
     (r"^(?:both |his |her |their |your |ur |my |the )?(?:hands|arms) (?:up|in the air|up in the air|up high|"
      r"to the sky|overhead)\b", "raise both arms"),
     (r"\b(?:fist )?pump(?:s|ed|ing)? (?:his |her |their |your |ur |my )?fists?\b", "punch"),
-    (r"\b(?:step|steps|stepped|stepping|move|moves|moved|moving|slide|slides|slid|sliding|scoot|scoots|scooted|"
-     r"scooting) (?:to the |towards the |toward the |over to the |)(left|right)(?:wards?| side)?\b",
-     r"sidestep to the \1"),
+    (rf"\b(?:step|steps|stepped|stepping|{_MOVE}|slide|slides|slid|sliding|scoot|scoots|scooted|scooting) "
+     r"(?:to the |towards the |toward the |over to the |)(left|right)(?:wards?| side)?\b", r"sidestep to the \1"),
     (r"\bside ?step(?:s|ped|ping)?\b", "sidestep"), (r"\bstrafe(?:s|d)?\b|\bstrafing\b", "sidestep"),
     (r"\bcrab[- ]walk(?:s|ed|ing)?\b", "sidestep"),
-    (r"\b(?:go|goes|went|going|move|moves|moved|moving|head|heads|headed|heading) (?:straight )?(forwards?|ahead)\b",
-     r"walk \1"),
+    (rf"\b(?:{_GO}|{_MOVE}|{_HEAD}) (?:straight )?(forwards?|ahead)\b", r"walk \1"),
     (r"\b(?:bend|bends|bent|bending) (?:over|at the waist)\b", "bow"),
     (r"\b(?:hit|hits|hitting|drop|drops|dropped|dropping|get|gets|got|getting) (?:down )?(?:low|into a squat)\b",
      "squat down"),
-    (r"\bon the spot\b", "in place"), (r"\bin one place\b", "in place"), (r"\bwhere (?:he|she|they|it) (?:is|are|"
-     r"stands?)\b", "in place"),
+    (r"\bon the spot\b", "in place"), (r"\bin one place\b", "in place"),
+    (r"\bwhere (?:he|she|they|it) (?:is|are|stands?)\b", "in place"),
     (r"\bcounter[- ]?clockwise\b", "counterclockwise"), (r"\banti[- ]?clockwise\b", "counterclockwise"),
     (r"\b(?:a )?couple (?:of )?times\b", "twice"), (r"\b(?:a )?few times\b", "three times"),
     (r"\bx ?(\d+)\b", r"\1 times"), (r"\b(\d+) ?x\b", r"\1 times"),
     (r"\bwith (?:his|her|their|your|ur|my|the) (left|right)\b(?! (?:hand|arm|leg|foot|fist|side|shoulder))",
      r"with \1 hand"),
 ]
-
 
 # Verbs a prompt may use (base forms) and what they mean in the captions' vocabulary, applied only where the
 # caption index does not know the word itself.
@@ -135,33 +130,24 @@ SYNONYMS = by_target({
             "promenade trek advance",
     "walk backward": "retreat recede",
     "run": "jog sprint dash race rush bolt scurry hustle zoom gallop scamper charge speed",
-    "jump": "hop leap bounce spring bound vault skip pounce lunge",
-    "wave": "greet salute hail beckon",
-    "kick": "boot punt",
-    "squat": "crouch kneel duck hunker dip stoop",
-    "turn": "rotate pivot spin twirl swivel whirl",
-    "sit": "perch settle",
-    "punch": "hit strike jab box sock smack slug pummel spar fight uppercut",
-    "clap": "applaud cheer",
-    "sidestep": "shuffle slide scoot strafe",
-    "raise": "lift hoist elevate reach hold",
-    "stand": "idle wait stay linger loiter chill",
-    "bow": "curtsy curtsey nod",
+    "jump": "hop leap bounce spring bound vault skip pounce lunge", "wave": "greet salute hail beckon",
+    "kick": "boot punt", "squat": "crouch kneel duck hunker dip stoop", "turn": "rotate pivot spin twirl swivel whirl",
+    "sit": "perch settle", "punch": "hit strike jab box sock smack slug pummel spar fight uppercut",
+    "clap": "applaud cheer", "sidestep": "shuffle slide scoot strafe", "raise": "lift hoist elevate reach hold",
+    "stand": "idle wait stay linger loiter chill", "bow": "curtsy curtsey nod",
 })
 # More base forms recognised as verbs (besides the synonym table's words and the captions' own verbs).
 BASE_VERBS = words("walk run jump wave kick squat turn sit punch clap sidestep raise stand bow step take make do throw "
                    "swing bend lower lift move hop leap jog sprint spin box jab applaud shuffle put bring dance go "
                    "stomp rise stretch shake look nod lean crawl climb fall dive roll catch pick swim wiggle flap "
                    "circle")
-# Irregular and -es forms -> base form.
-IRREGULAR = {"ran": "run", "running": "run", "sat": "sit", "sitting": "sit", "stood": "stand", "threw": "throw",
-             "took": "take", "spun": "spin", "swung": "swing", "bent": "bend", "went": "go", "gone": "go",
-             "did": "do", "done": "do", "made": "make", "held": "hold", "brought": "bring", "leapt": "leap",
-             "sprang": "spring", "knelt": "kneel", "fell": "fall", "rose": "rise", "risen": "rise", "got": "get",
-             "lay": "lie", "lying": "lie", "hit": "hit", "strode": "stride", "slid": "slide", "shook": "shake",
-             "dove": "dive", "has": "have", "is": "be", "are": "be", "was": "be", "were": "be", "does": "do",
-             "goes": "go", "boxes": "box", "punches": "punch", "crouches": "crouch", "stretches": "stretch",
-             "reaches": "reach", "marches": "march", "dashes": "dash", "rushes": "rush", "lunges": "lunge"}
+# Irregular and -es forms -> base form ("form:base" pairs).
+IRREGULAR = dict(pair.split(":") for pair in (
+    "ran:run running:run sat:sit sitting:sit stood:stand threw:throw took:take spun:spin swung:swing bent:bend went:go "
+    "gone:go did:do done:do made:make held:hold brought:bring leapt:leap sprang:spring knelt:kneel fell:fall rose:rise "
+    "risen:rise got:get lay:lie lying:lie hit:hit strode:stride slid:slide shook:shake dove:dive has:have is:be are:be "
+    "was:be were:be does:do goes:go boxes:box punches:punch crouches:crouch stretches:stretch reaches:reach "
+    "marches:march dashes:dash rushes:rush lunges:lunge").split())
 # Light verbs: in "do a hop", "give a little wave", "do 3 squats" the noun after them is the action.
 LIGHT_VERBS = words("do does did doing give gives gave giving perform performs performed performing bust busts pull "
                     "pulls throw throws threw throwing take takes took taking make makes made making have has hit "
@@ -188,11 +174,10 @@ DIRECTIONS = set(OPPOSITES) | words("sideways circle place both backwards around
 
 
 # Clause boundaries, strongest first. "X before Y" keeps the order, "X after Y" swaps it (AFTER).
-SEQ_SPLIT = re.compile(r"\s*(?:,?\s*\band then\b|,?\s*\band after that\b|,?\s*\band afterwards\b|"
-                       r",?\s*\bafter that\b|,?\s*\bafterwards\b|,?\s*\bafterward\b|,?\s*\bthen\b|"
-                       r",?\s*\bfollowed by\b|,?\s*\band finally\b|,?\s*\bfinally\b|,?\s*\bnext\b|"
-                       r",?\s*\band next\b|,?\s*\bonce done\b|,?\s*\bonce finished\b|,?\s*\bbefore\b|"
-                       r"[.;!?]+|,|\s+-+\s+|\s*&\s*|\s*->\s*|\s*=>\s*|\s*\+\s*)\s*")
+SEQ_SPLIT = re.compile(r"\s*(?:" + "|".join(rf",?\s*\b{w}\b" for w in (
+    "and then;and after that;and afterwards;after that;afterwards;afterward;then;followed by;and finally;finally;next;"
+    "and next;once done;once finished;before").split(";"))
+                       + r"|[.;!?]+|,|\s+-+\s+|\s*&\s*|\s*->\s*|\s*=>\s*|\s*\+\s*)\s*")
 AFTER = re.compile(r"^(.*\S)\s+after\s+(?!that\b)(.+)$")
 # Words skipped to find a caption's verb after its subject or after "then" (wording.caption_verbs).
 CAPTION_VERB_SKIP = KEEP_ADVERBS | words("first then also and that afterwards")

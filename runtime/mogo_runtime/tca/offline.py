@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from typing import Callable
 
 import numpy as np
 
@@ -30,22 +31,13 @@ NEIGHBOURS = 3    # of them, kept per clause in `details["neighbours"]`
 MAX_SPLITS = 8
 
 
-class _Encoder:
+def _encoder(session) -> Callable[[list[str]], np.ndarray]:
     """Anything that embeds prompts: a TextEncoderSession (.encode), an OrtBackend (.encode_text), a callable."""
-
-    def __init__(self, session):
-        if hasattr(session, "encode"):
-            self.fn = session.encode
-        elif hasattr(session, "encode_text"):
-            self.fn = session.encode_text
-        elif callable(session):
-            self.fn = session
-        else:
-            raise TypeError(f"text_session must have .encode(list[str]) or .encode_text(list[str]); got "
-                            f"{type(session).__name__}")
-
-    def __call__(self, texts: list[str]) -> np.ndarray:
-        return np.asarray(self.fn(list(texts)), np.float32)
+    fn = next((getattr(session, name) for name in ("encode", "encode_text") if hasattr(session, name)), session)
+    if fn is session and not callable(session):
+        raise TypeError(f"text_session must have .encode(list[str]) or .encode_text(list[str]); got "
+                        f"{type(session).__name__}")
+    return lambda texts: np.asarray(fn(list(texts)), np.float32)
 
 
 def _query_directions(clause: str) -> set[str]:
@@ -80,7 +72,7 @@ class OfflineAligner(Aligner):
         cfg = {**DEFAULTS, **{k: section[k] for k in DEFAULTS if k in section}}
         self.lexical_weight = float(cfg["lexical_weight"] if lexical_weight is None else lexical_weight)
         self.split_margin = float(cfg["split_margin"] if split_margin is None else split_margin)
-        self.encode = _Encoder(text_session) if text_session is not None else None
+        self.encode = _encoder(text_session) if text_session is not None else None
         self._warn_no_index = bundle is not None and index is None
         vocab = verbs = None
         if index is not None:
@@ -111,7 +103,8 @@ class OfflineAligner(Aligner):
             normalized = sentence(clauses)
             return AlignedPrompt(normalized, method="normalize", details={"clauses": clauses, "normalized": normalized})
         clauses = self._refine_split(clauses)
-        hits = self._retrieve(clauses)
+        idx, cos, _ = self._scores(clauses)
+        hits = [list(zip(i.tolist(), c.tolist())) for i, c in zip(idx, cos)]
         clauses, hits = self._merge_repeats(clauses, hits)
         details = {"clauses": clauses, "normalized": sentence(clauses),
                    "neighbours": [[(self.index.captions[i], round(float(s), 4)) for i, s in h] for h in hits]}
@@ -130,17 +123,12 @@ class OfflineAligner(Aligner):
                 score[r] += self.lexical_weight * np.array([_agreement(words, self._caption_words(i))
                                                             for i in idx[r]])
         order = np.argsort(-score, axis=1, kind="stable")[:, :NEIGHBOURS]
-        take = lambda a: np.take_along_axis(a, order, axis=1)  # noqa: E731
-        return take(idx), take(cos), take(score)
+        return tuple(np.take_along_axis(a, order, axis=1) for a in (idx, cos, score))
 
     def _caption_words(self, i: int) -> set[str]:
         if i not in self._directions:
             self._directions[i] = _caption_directions(self.index.captions[i])
         return self._directions[i]
-
-    def _retrieve(self, clauses: list[str]) -> list[list[tuple[int, float]]]:
-        idx, cos, _ = self._scores(clauses)
-        return [list(zip(i.tolist(), c.tolist())) for i, c in zip(idx, cos)]
 
     def _merge_repeats(self, clauses, hits):
         """Neighbouring clauses that retrieve the same action family describe one action: keep the closer one."""

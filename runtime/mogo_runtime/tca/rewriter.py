@@ -132,14 +132,14 @@ def style_examples(index: CaptionIndex, n: int = 8) -> list[str]:
     singles = sorted(k for k in groups if not k.startswith("seq:"))
     rng = np.random.default_rng(0)
     picked = sorted(rng.choice(len(singles), size=min(n - 1, len(singles)), replace=False).tolist())
-    chosen = []
-    for j in picked:
-        rows = sorted(groups[singles[j]], key=lambda i: (len(index.captions[i]), index.captions[i]))
-        chosen.append(rows[len(rows) // 2])
-    seq = sorted((i for k, rows in groups.items() if k.startswith("seq:") for i in rows
-                  if " and then " in index.captions[i]), key=lambda i: (len(index.captions[i]), index.captions[i]))
+
+    def typical(rows: list[int]) -> int:          # the caption of median length
+        return sorted(rows, key=lambda i: (len(index.captions[i]), index.captions[i]))[len(rows) // 2]
+
+    chosen = [typical(groups[singles[j]]) for j in picked]
+    seq = [i for k, rows in groups.items() if k.startswith("seq:") for i in rows if " and then " in index.captions[i]]
     if seq:
-        chosen.append(seq[len(seq) // 2])
+        chosen.append(typical(seq))
     return [sentence([re.sub(r"\b(?:his|her)\b", "their", strip_subject(index.captions[i]))]) for i in chosen]
 
 
@@ -147,6 +147,4 @@ def _endpoint(url: str) -> str:
     url = url.rstrip("/")
     if url.endswith("/chat/completions"):
         return url
-    if url.endswith("/v1"):
-        return url + "/chat/completions"
-    return url + "/v1/chat/completions"
+    return url + ("/chat/completions" if url.endswith("/v1") else "/v1/chat/completions")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import re
 import unicodedata
+from itertools import groupby
 
 from .lexicon import (AFTER, BASE_VERBS, CAPTION_VERB_SKIP, CAUSATIVE, CONTRACTIONS, COUNTS, DANGLING, DIRECTIONS,
                       EMOJI, FILLER_PHRASES, FILLERS, FUNCTION, HELPERS, IRREGULAR, KEEP_ADVERBS, LEADING_SUBJECT,
@@ -15,10 +16,8 @@ from .lexicon import (AFTER, BASE_VERBS, CAPTION_VERB_SKIP, CAUSATIVE, CONTRACTI
 
 
 def _third_person(base: str) -> str:
-    if base == "be":
-        return "is"
-    if base == "have":
-        return "has"
+    if base in ("be", "have"):
+        return {"be": "is", "have": "has"}[base]
     if base.endswith(("s", "sh", "ch", "x", "z", "o")):
         return base + "es"
     if base.endswith("y") and len(base) > 1 and base[-2] not in "aeiou":
@@ -60,13 +59,11 @@ class WordingNormalizer:
         if word.endswith("ing") and len(word) > 4:
             stem = word[:-3]
             cands += [stem, stem + "e"] + ([stem[:-1]] if len(stem) > 2 and stem[-1] == stem[-2] else [])
-        elif word.endswith("ied") and len(word) > 4:
+        elif word.endswith(("ied", "ies")) and len(word) > 4:
             cands += [word[:-3] + "y"]
         elif word.endswith("ed") and len(word) > 3:
             stem = word[:-2]
             cands += [stem, word[:-1]] + ([stem[:-1]] if len(stem) > 2 and stem[-1] == stem[-2] else [])
-        elif word.endswith("ies") and len(word) > 4:
-            cands += [word[:-3] + "y"]
         elif word.endswith("es") and len(word) > 3:
             sibilant = word.endswith(("ses", "shes", "ches", "xes", "zes", "oes"))
             cands += [word[:-2], word[:-1]] if sibilant else [word[:-1], word[:-2]]
@@ -203,19 +200,17 @@ class WordingNormalizer:
             elif w in TIMES and nxt == "times":                     # "2 times" -> "twice"
                 out.append((TIMES[w], False))
                 k += 1
-            elif w in NUMBERS:
-                out.append((NUMBERS[w], False))
-            elif w in WORD_MAP and not (self.vocabulary and w in self.vocabulary):
+            elif w in WORD_MAP and not (self.vocabulary and w in self.vocabulary):   # never a digit, as NUMBERS
                 out.append((WORD_MAP[w], False))
             else:
-                out.append((w, False))
+                out.append((NUMBERS.get(w, w), False))
             k += 1
         if self.vocabulary:
             out = self._drop_unknown(out)
         words = [w for w, _ in out]
         while words and words[-1] in DANGLING:
             words.pop()
-        return _dedupe(words)
+        return [w for w, _ in groupby(words)]        # no word twice in a row
 
     def _drop_unknown(self, words: list[tuple[str, bool]]) -> list[tuple[str, bool]]:
         """Remove content words the captions never use, with the article/preposition run in front of them."""
@@ -259,19 +254,9 @@ def caption_verbs(captions: list[str]) -> set[str]:
     return verbs
 
 
-def _dedupe(words: list[str]) -> list[str]:
-    out: list[str] = []
-    for w in words:
-        if not out or out[-1] != w:
-            out.append(w)
-    return out
-
-
 def sentence(clauses: list[str], subject: str = "a person") -> str:
     """Verb phrases -> one HumanML3D-style caption: "a person X and then Y and then Z."."""
-    if not clauses:
-        return ""
-    return f"{subject} " + " and then ".join(clauses) + "."
+    return f"{subject} " + " and then ".join(clauses) + "." if clauses else ""
 
 
 def strip_subject(caption: str) -> str:
