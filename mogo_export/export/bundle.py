@@ -139,7 +139,8 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
             variants=variants,
             files={p.name: (p.stat().st_size, sha256_file(p)) for p in sorted(tmp.iterdir())},
         )
-        text = json.dumps(Manifest.parse(manifest.to_dict(), "manifest.json").to_dict(), indent=2) + "\n"
+        text = json.dumps(manifest.to_dict(), indent=2) + "\n"
+        Manifest.parse(json.loads(text), str(out / "manifest.json"))     # what is written must read back
         write_atomic(tmp / "manifest.json", lambda f: f.write(text.encode()))
         if out.exists():  # replace an older bundle only now that the new one is complete
             old = out.parent / f".{out.name}.old-{os.getpid()}"

@@ -5,7 +5,7 @@
     mogo info bundles/base                                  # graphs, variants, sizes, dims, verified hashes
     mogo generate "yo make the dude do a lil hop" --align -o hop.bvh   # TCA: prompt rewritten in caption style
 
-`--align` conditions on the prompt rewritten into the training captions' style (TCA, mogo_runtime/tca.py): offline
+`--align` conditions on the prompt rewritten into the training captions' style (TCA, mogo_runtime/tca/): offline
 with the bundle's caption index, or with `--rewriter-url URL --rewriter-model NAME` by an OpenAI-compatible chat
 endpoint (key from $MOGO_TCA_API_KEY), falling back to the offline aligner when it fails. The aligned text is
 printed on stderr.
@@ -29,6 +29,7 @@ from .bundle import GRAPHS, Bundle, BundleError
 from .manifest import SCHEMA_VERSION
 from .sampling import SamplingConfig
 from .motion import SAVE_FORMATS, check_output_path
+from .text import check_texts
 
 DEFAULT_BUNDLE = "bundles/base"
 EXIT_USAGE = 2
@@ -127,7 +128,7 @@ def _load_generator(args):
     # No argparse default for --variant: argparse would then miss "--int8 --variant fp32" as a conflict.
     gen = MotionGenerator(path, variant="fp32" if args.variant is None else args.variant, threads=args.threads)
     if args.rewriter_url:  # the offline aligner stays as the fallback; sessions are opened once
-        from .tca.rewriter import ChatRewriter
+        from mogo_rewriter import ChatRewriter
 
         gen.aligner = ChatRewriter(args.rewriter_url, args.rewriter_model or "default", fallback=gen.aligner)
     return gen
@@ -159,14 +160,8 @@ def _sampling(args, defaults: SamplingConfig) -> SamplingConfig:
     return replace(defaults, **{k: v for k, v in given.items() if v is not None})
 
 
-def _check_text(text: str) -> None:
-    if not text.strip():
-        raise UsageError(f"the text is empty or whitespace only ({text!r}); describe a motion, "
-                         f"e.g. \"a person walks forward\"")
-
-
 def cmd_generate(args) -> int:
-    _check_text(args.text)
+    check_texts([args.text])         # before any work: an empty prompt should not cost a bundle load
     align = _align(args)
     for out in args.output:            # before any work: a typo should not cost a generation
         check_output_path(out)
@@ -199,7 +194,7 @@ def cmd_generate(args) -> int:
 
 
 def cmd_stream(args) -> int:
-    _check_text(args.text)
+    check_texts([args.text])         # before any work: an empty prompt should not cost a bundle load
     align = _align(args)
     gen = _load_generator(args)
     with _warnings_as_lines():
@@ -249,11 +244,9 @@ def cmd_info(args) -> int:
     for name, (size, digest) in m.files.items():
         try:
             bundle.check_file(name)
-            ok = True
         except BundleError:
-            ok = False
-        failed += [] if ok else [name]
-        print(f"  {name:<28} {_mb(size):>9}  sha256 {digest[:16]}  {'OK' if ok else 'FAILED'}")
+            failed.append(name)
+        print(f"  {name:<28} {_mb(size):>9}  sha256 {digest[:16]}  {'FAILED' if name in failed else 'OK'}")
     if failed:
         raise BundleError(f"{bundle.path}: {len(failed)} file(s) missing or not matching their size and sha256 in "
                           f"manifest.json: {', '.join(failed)} (corrupted or replaced; re-export or re-copy the "

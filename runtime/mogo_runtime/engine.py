@@ -8,8 +8,7 @@ import numpy as np
 
 from .bundle import Bundle, BundleError
 from .manifest import GRAPHS, ModelDims
-from .sessions import session_options
-from .text import TextEncoderSession
+from .text import TextEncoderSession, session_options
 
 MAX_THREADS = 64   # onnxruntime segfaults on absurd thread counts; no CPU this runs on has more cores
 

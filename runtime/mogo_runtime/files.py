@@ -37,16 +37,12 @@ def write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> Path:
 
 
 def _fsync_folder(folder: Path) -> None:
-    """Make a rename in `folder` durable (POSIX; Windows has no fsync for a folder)."""
-    if os.name != "posix":
-        return
-    try:
+    """Make a rename in `folder` durable (POSIX; some file systems refuse fsync on a folder: the data is on disk)."""
+    if os.name == "posix":
         fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:  # some file systems refuse fsync on a folder; the data itself is already on disk
-        pass
-    finally:
-        os.close(fd)
+        try:
+            os.fsync(fd)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)

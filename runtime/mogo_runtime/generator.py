@@ -75,22 +75,10 @@ class MotionGenerator:
         self.bundle = (bundle if isinstance(bundle, Bundle) else
                        Bundle.load(bundle, variants=[variant], check_graphs=False))
         self.backend = open_backend(self.bundle, variant, threads)
-        self.dims = self.bundle.dims
-        self.skeleton = self.bundle.skeleton
+        self.variant, self.dims, self.skeleton = variant, self.bundle.dims, self.bundle.skeleton
+        self.max_tokens, self.max_seconds = self.dims.max_tokens, self.dims.max_seconds
         self.sampling_defaults: SamplingConfig = self.bundle.manifest.sampling_defaults
         self._aligner = aligner
-
-    @property
-    def variant(self) -> str:
-        return self.backend.variant
-
-    @property
-    def max_tokens(self) -> int:
-        return self.dims.max_tokens
-
-    @property
-    def max_seconds(self) -> float:
-        return self.dims.max_seconds
 
     @property
     def aligner(self) -> Aligner:

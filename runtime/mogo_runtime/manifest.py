@@ -12,8 +12,6 @@ import re
 from dataclasses import asdict, dataclass, fields
 from pathlib import PurePosixPath
 
-import numpy as np
-
 from .features import FeatureLayout
 from .sampling import SamplingConfig
 from .skeleton import SKELETONS, Skeleton
@@ -168,9 +166,6 @@ class TensorSpec:
             f.fail("shape", f"expected at most 8 dims, each a name or an integer >= 1, got {shape!r}")
         return cls(f.str("name"), dtype, tuple(shape))
 
-    def to_dict(self) -> dict:
-        return {"name": self.name, "dtype": self.dtype, "shape": list(self.shape)}
-
 
 @dataclass(frozen=True)
 class GraphSpec:
@@ -187,9 +182,6 @@ class GraphSpec:
                 f.fail(kind, f"expected a non-empty list of distinct names, got {names}")
             io[kind] = tuple(specs)
         return cls(**io)
-
-    def to_dict(self) -> dict:
-        return {"inputs": [s.to_dict() for s in self.inputs], "outputs": [s.to_dict() for s in self.outputs]}
 
 
 @dataclass(frozen=True)
@@ -225,10 +217,9 @@ class TextEncoderSpec:
 
 
 @dataclass(frozen=True)
-class Normalization:
-    mean: tuple[float, ...]          # (feature_dim,) listed for reference: the decoder applies them itself
+class Normalization:                 # mode NORMALIZATION: the decoder applies them itself; listed for reference
+    mean: tuple[float, ...]          # (feature_dim,)
     std: tuple[float, ...]
-    mode: str = NORMALIZATION
 
 
 @dataclass(frozen=True)
@@ -267,11 +258,10 @@ class Manifest:
             "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "producer": self.producer or {},
             "model": self.model.to_dict(), "skeleton": self.skeleton.to_dict(),
             "features": self.layout.to_dict(),
-            "normalization": {"mode": self.normalization.mode, "mean": list(self.normalization.mean),
-                              "std": list(self.normalization.std)},
+            "normalization": {"mode": NORMALIZATION, **asdict(self.normalization)},
             "text_encoder": asdict(self.text_encoder), "sampling_defaults": self.sampling_defaults.to_dict(),
             "cache": asdict(self.cache), **({"tca": self.tca} if self.tca else {}),
-            "graphs": {g: s.to_dict() for g, s in self.graphs.items()},
+            "graphs": {g: asdict(s) for g, s in self.graphs.items()},          # tuples are written as lists
             "variants": {v: {g: asdict(e) for g, e in gs.items()} for v, gs in self.variants.items()},
             "files": {n: {"bytes": b, "sha256": h} for n, (b, h) in self.files.items()},
         }
@@ -295,7 +285,8 @@ class Manifest:
                    sampling_defaults=_parse_sampling(f.sub("sampling_defaults")),
                    cache=_parse_cache(f.sub("cache")), producer=producer, files=_parse_files(f.sub("files")),
                    graphs={g: GraphSpec.parse(f.sub("graphs").sub(g)) for g in GRAPHS},
-                   variants=_parse_variants(f.sub("variants")), tca=_parse_tca(f)).checked(where)
+                   variants=_parse_variants(f.sub("variants")),
+                   tca=None if f.get("tca", None) is None else f.sub("tca").obj).checked(where)
 
     def checked(self, where: str) -> "Manifest":
         """Agreement between sections: files named by variants are listed, the step graph's I/O is the cache."""
@@ -303,7 +294,7 @@ class Manifest:
             for g, entry in graphs.items():
                 if entry.file not in self.files:
                     raise BundleError(f"{where}: field variants.{v}.{g}.file: {entry.file!r} is not in 'files'")
-        for name in (self.text_encoder.tokenizer, *([self.tca["file"]] if self.tca else [])):
+        for name in (self.text_encoder.tokenizer, *([self.tca.get("file")] if self.tca else [])):
             if name not in self.files:
                 raise BundleError(f"{where}: {name!r} is named by the manifest but not listed in 'files'")
         step, m = self.graphs["step"], self.model
@@ -324,27 +315,20 @@ class Manifest:
 
 
 def _parse_skeleton(f: _Fields, features: _Fields, model: ModelDims) -> Skeleton:
-    """The skeleton must be one this runtime knows, stored exactly: the joints code relies on its tables."""
+    """The skeleton must be one this runtime knows, stored exactly (as Skeleton.to_dict writes it): the joints
+    code relies on its tables."""
     name = f.str("name")
     if name not in SKELETONS:
         f.fail("name", f"unknown skeleton {name!r}; this runtime knows {sorted(SKELETONS)}")
     skeleton = SKELETONS[name]
-    known = skeleton.to_dict()
-    for key in known:
-        if key != "offsets" and _json(f.get(key)) != _json(known[key]):
-            f.fail(key, f"differs from the {name!r} skeleton this runtime knows ({known[key]!r})")
-    try:
-        offsets = np.asarray(f.get("offsets"), dtype=np.float64)
-    except (TypeError, ValueError):
-        offsets = None
-    if offsets is None or offsets.shape != skeleton.offsets.shape or not np.allclose(offsets, known["offsets"],
-                                                                                    atol=1e-6):
-        f.fail("offsets", f"differ from the {name!r} skeleton this runtime knows")
-    if _json(features.obj) != _json(FeatureLayout.for_skeleton(skeleton).to_dict()):
+    for key, want in skeleton.to_dict().items():
+        if _json(f.get(key)) != _json(want):
+            f.fail(key, f"differs from the {name!r} skeleton this runtime knows ({_json(want)[:60]}...)")
+    layout = FeatureLayout.for_skeleton(skeleton)
+    if _json(features.obj) != _json(layout.to_dict()):
         features.fail("", f"differs from the feature layout of the {name!r} skeleton this runtime knows")
-    if FeatureLayout.for_skeleton(skeleton).dim != model.feature_dim:
-        f.fail("name", f"{name!r} has {FeatureLayout.for_skeleton(skeleton).dim} features per frame, "
-                       f"model.feature_dim is {model.feature_dim}")
+    if layout.dim != model.feature_dim:
+        f.fail("name", f"{name!r} has {layout.dim} features per frame, model.feature_dim is {model.feature_dim}")
     return skeleton
 
 
@@ -422,11 +406,3 @@ def _parse_variants(f: _Fields) -> dict[str, dict[str, GraphFile]]:
             entries[g] = GraphFile(file=e.str("file"), quantization=q or None)
         variants[v] = entries
     return variants
-
-
-def _parse_tca(f: _Fields) -> dict | None:
-    if f.get("tca", None) is None:
-        return None
-    tca = f.sub("tca")
-    tca.str("file")
-    return tca.obj

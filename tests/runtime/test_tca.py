@@ -24,7 +24,7 @@ from mogo_runtime.cli import main
 from mogo_runtime.tca import (AlignedPrompt, Aligner, CaptionIndex, OfflineAligner, WordingNormalizer, apply_alignment,
                               quantize_rows, sentence, strip_subject)
 from mogo_runtime.tca.offline import MAX_SPLITS
-from mogo_runtime.tca.rewriter import ChatRewriter
+from mogo_rewriter import ChatRewriter
 from mogo_runtime.text import TextEncoderSession
 
 # ------------------------------------------------------------------------------------------- wording
@@ -165,23 +165,20 @@ def test_unknown_prompts_and_aligning_without_an_index(index):
     assert (plain.text, plain.method) == ("a person jogs.", "normalize")   # no caption vocabulary: jogs stays
 
 
-def test_the_package_loads_what_is_used():
-    """Cold start: importing the package reads nothing; the offline path never reads the rewriter or urllib."""
+def test_the_offline_path_never_loads_the_rewriter():
+    """mogo_runtime never imports mogo_rewriter (a device build leaves it out) nor urllib; the rewriter loads
+    urllib only on its first request."""
     code = """if True:
         import json, sys
-        import mogo_runtime.tca as tca
-        seen = lambda: sorted(m for m in sys.modules if m.startswith("mogo_runtime.tca.") or m == "urllib.request")
+        import mogo_runtime, mogo_runtime.cli, mogo_runtime.generator, mogo_runtime.tca as tca
+        seen = lambda: sorted(m for m in sys.modules if m.startswith("mogo_rewriter") or m == "urllib.request")
         steps = [seen()]
-        tca.OfflineAligner
-        steps.append(seen())
-        tca.ChatRewriter
+        import mogo_rewriter
         steps.append(seen())
         print(json.dumps(steps))"""
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    on_import, offline, rewriter = json.loads(out)
-    assert on_import == [] and offline == ["mogo_runtime.tca." + m for m in
-                                           ("base", "index", "lexicon", "offline", "wording")]
-    assert set(rewriter) - set(offline) == {"mogo_runtime.tca.rewriter"}       # urllib: on the first request
+    runtime_only, with_rewriter = json.loads(out)
+    assert runtime_only == [] and with_rewriter == ["mogo_rewriter"]
 
 
 def test_index_round_trips_int8_and_float16(tmp_path, index):

@@ -1,11 +1,12 @@
-"""TCA through an external language model: `ChatRewriter` calls an OpenAI-compatible /v1/chat/completions
-endpoint with a style prompt built from a few training captions; off unless configured.
+"""TCA through an external language model, apart from the runtime a device ships: `ChatRewriter` calls an
+OpenAI-compatible /v1/chat/completions endpoint with a style prompt built from a few training captions.
 
-    from mogo_runtime.tca.rewriter import ChatRewriter
+    from mogo_rewriter import ChatRewriter
     gen.aligner = ChatRewriter("http://localhost:8000/v1", "qwen2.5", fallback=gen.aligner)
 
-Any failure (timeout, HTTP error, malformed reply) warns and returns the fallback aligner's result. The package
-does not import this module, and this module imports urllib only on the first call (~40 ms of a cold start).
+Any failure (timeout, HTTP error, malformed reply) warns and returns the fallback aligner's result. It is its own
+package because a game or an edge device has no chat model to call: `mogo_runtime` never imports it (only the
+CLI's --rewriter-url does), so a device build can leave it out. urllib is imported on the first call (~40 ms).
 """
 from __future__ import annotations
 
@@ -16,10 +17,10 @@ import warnings
 
 import numpy as np
 
-from .base import AlignedPrompt, Aligner
-from .index import CaptionIndex
-from .offline import OfflineAligner
-from .wording import sentence, strip_subject
+from mogo_runtime.tca.base import AlignedPrompt, Aligner
+from mogo_runtime.tca.index import CaptionIndex
+from mogo_runtime.tca.offline import OfflineAligner
+from mogo_runtime.tca.wording import sentence, strip_subject
 
 STYLE_PROMPT = """You rewrite requests for a text-to-motion model into the style of the captions it was trained on.
 Rules:
