@@ -117,6 +117,7 @@ OPTIONAL_META = {
     "preset": (str, "name of the preset it was trained with"),
     "vq_step": (int, "the VQ step whose tokens the transformer trained on"),
     "val": (dict, "validation metrics at the last checkpoint"),
+    "streaming": (dict, "{window, refresh}: the context policy of endless streams it was trained for (presets.py)"),
 }
 
 
@@ -136,6 +137,7 @@ class TrainedModels:
     skeleton: str
     preset: str
     dataset: str | None        # None when the checkpoint does not record it
+    streaming: dict | None     # {window, refresh} when trained for endless streams (presets.Streaming), else None
     vq_step: int               # optimiser steps each model was trained for
     transformer_step: int
     # each file's envelope without the weights and the optimiser/RNG state: "config", "train" ({step, done}),
@@ -215,7 +217,8 @@ def load_trained(folder: str | Path) -> TrainedModels:
         mean=_vector(vq_path, vq_meta, "mean", vq_cfg.input_dim),
         std=_vector(vq_path, vq_meta, "std", vq_cfg.input_dim),
         fps=fps, max_tokens=tr_meta["max_tokens"], skeleton=vq_meta["skeleton"], preset=vq_meta["preset"],
-        dataset=vq_meta.get("dataset"), vq_step=steps[0], transformer_step=steps[1],
+        dataset=vq_meta.get("dataset"), streaming=tr_meta.get("streaming"), vq_step=steps[0],
+        transformer_step=steps[1],
         vq_payload=_envelope(vq_payload), transformer_payload=_envelope(tr_payload))
 
 

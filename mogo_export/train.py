@@ -21,6 +21,7 @@ from mogo_runtime.skeleton import get_skeleton
 
 from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
 from .data.dataset import MotionDataset
+from .data.timelines import read_timelines
 from .models import transformer as tmodel
 from .models import vq as vqmodel
 from .models.text_encoder import CachedTextEncoder, get_text_encoder
@@ -151,10 +152,12 @@ def extract_tokens(data: Path, out: Path, progress: bool = True) -> Path:
     arrays = {}
     for split in ("train", "val", "test"):
         ds = MotionDataset.load(data, split)
-        for it in tqdm(ds.items, desc=f"tokens {split}", disable=not progress):
-            T = len(it.features) // cfg.downsample * cfg.downsample
-            x = torch.from_numpy(ds.normalize(it.features[:T]))[None]
-            arrays[f"{split}/{it.clip_id}"] = vq.encode(x)[0].numpy().astype(np.int16)
+        whole = [(f"timeline/{split}/{t.clip_id}", t.features) for t in read_timelines(data, split, ds.skeleton)]
+        items = [(f"{split}/{it.clip_id}", it.features) for it in ds.items] + whole
+        for key, features in tqdm(items, desc=f"tokens {split}", disable=not progress):
+            T = len(features) // cfg.downsample * cfg.downsample
+            x = torch.from_numpy(ds.normalize(features[:T]))[None]
+            arrays[key] = vq.encode(x)[0].numpy().astype(np.int16)
     # a file object, so np.savez does not append ".npz" to the temporary name
     return write_atomic(path, lambda f: np.savez(f, vq_step=np.array(payload["train"]["step"]), **arrays))
 
@@ -175,29 +178,58 @@ def _caption_table(data: Path, out: Path, encoder_name: str):
 # -----------------------------------------------------------------------------
 # RQHC-Transformer
 
-def _token_batch(seqs, caps, emb, rng, batch, cfg, by_length=None):
-    """A batch of (text, [BOS, t...], [t..., END], length). With `by_length` (indices sorted by length) the batch is
-    a random run of similar lengths, so little compute goes to padding."""
-    if by_length is not None and len(by_length) > batch:
-        start = rng.integers(len(by_length) - batch + 1)
-        idx = by_length[start:start + batch]
+def _clip_examples(seqs, caps, emb, rng, n, cfg, by_length=None) -> list:
+    """Whole clips: ([BOS, t...], [t..., END]) with one of the clip's captions. With `by_length` (indices sorted by
+    length) the clips are a random run of similar lengths, so little compute goes to padding."""
+    if by_length is not None and len(by_length) > n:
+        start = rng.integers(len(by_length) - n + 1)
+        idx = by_length[start:start + n]
     else:
-        idx = rng.integers(len(seqs), size=batch)
-    lengths = np.array([len(seqs[i]) for i in idx])
-    S = lengths.max() + 1
-    L = cfg.num_levels
-    tin = np.full((batch, S, L), cfg.pad_id, np.int64)
-    tgt = np.full((batch, S, L), cfg.pad_id, np.int64)
-    text = np.empty((batch, cfg.text_dim), np.float32)
-    for b, i in enumerate(idx):
-        n = lengths[b]
-        tin[b, 0] = cfg.bos_id
-        tin[b, 1:n + 1] = seqs[i]
-        tgt[b, :n] = seqs[i]
-        tgt[b, n] = cfg.end_id
-        c = caps[i]
-        text[b] = emb[c[rng.integers(len(c))]]
+        idx = rng.integers(len(seqs), size=n)
+    out = []
+    for i in idx:
+        seq, c = seqs[i], caps[i]
+        tin = np.concatenate([np.full((1, cfg.num_levels), cfg.bos_id), seq])
+        tgt = np.concatenate([seq, np.full((1, cfg.num_levels), cfg.end_id)])
+        out.append((emb[c[rng.integers(len(c))]], tin, tgt))
+    return out
+
+
+def _window_examples(timelines, emb, rng, n, cfg, streaming) -> list:
+    """Streaming windows: the prompt prefix of one segment, then up to window + refresh tokens of the clip ending
+    inside that segment. Only tokens of the prompt's segment are targets: the earlier ones (another action, or
+    the same one begun before the window) are context, as after a prompt switch or a context rebuild at run
+    time. No END: a stream never ends by itself."""
+    out = []
+    for _ in range(n):
+        seq, segments = timelines[rng.integers(len(timelines))]
+        first, stop, captions = segments[rng.integers(len(segments))]
+        end = int(rng.integers(first, stop))                     # the last target
+        start = max(0, end + 1 - int(rng.integers(1, streaming.window + streaming.refresh + 1)))
+        tin = np.concatenate([np.full((1, cfg.num_levels), cfg.bos_id), seq[start:end]])
+        tgt = seq[start:end + 1].copy()
+        tgt[:max(0, first - start)] = cfg.pad_id                 # context from before the segment: no loss
+        out.append((emb[captions[rng.integers(len(captions))]], tin, tgt))
+    return out
+
+
+def _pad(examples, cfg):
+    """-> (text (B, text_dim), tokens_in (B, S, L), targets (B, S, L), lengths (B,)), PAD-filled on the right."""
+    lengths = np.array([len(tgt) - 1 for _, _, tgt in examples])
+    S, L = lengths.max() + 1, cfg.num_levels
+    tin = np.full((len(examples), S, L), cfg.pad_id, np.int64)
+    tgt = np.full((len(examples), S, L), cfg.pad_id, np.int64)
+    for b, (_, i, t) in enumerate(examples):
+        tin[b, :len(i)], tgt[b, :len(t)] = i, t
+    text = np.stack([e for e, _, _ in examples]).astype(np.float32)
     return torch.from_numpy(text), torch.from_numpy(tin), torch.from_numpy(tgt), torch.from_numpy(lengths)
+
+
+def _token_units(timeline, tokens: np.ndarray, downsample: int):
+    """A timeline's segments in tokens: (tokens, [(first, stop, captions)]), segments shorter than a token dropped."""
+    segs = [(seg.first // downsample, min(len(tokens), seg.stop // downsample), seg.captions)
+            for seg in timeline.segments]
+    return tokens, [(a, b, c) for a, b, c in segs if a < b]
 
 
 def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progress: bool = True,
@@ -222,6 +254,11 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
 
     seqs, caps = split("train")
     val_seqs, val_caps = split("val")
+    streaming = pset.streaming
+    timelines = [_token_units(t, tokens[f"timeline/train/{t.clip_id}"], vq_cfg["downsample"])
+                 for t in read_timelines(data, "train")]
+    timelines = [t for t in timelines if t[1]]
+    n_window = streaming.windows if timelines else 0
     by_length = np.argsort([len(q) for q in seqs], kind="stable")
     max_tokens = max(len(s) for s in seqs)
     cfg = pset.transformer_config(num_levels=vq_cfg["num_levels"], codebook_size=vq_cfg["codebook_size"],
@@ -237,14 +274,23 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
     val_rng = np.random.default_rng(seed + 1)
     # the fields checkpoint.load_trained requires (checkpoint.TRANSFORMER_META), plus the run's own record
     meta = {"text_encoder": text_encoder, "max_tokens": int(max_tokens * 1.25) + 1, "dataset": str(data),
-            "preset": preset, "vq_step": vq_payload["train"]["step"]}
+            "preset": preset, "vq_step": vq_payload["train"]["step"],
+            # trained for endless streams only when the data has timelines to learn prompt switches from
+            **({"streaming": {"window": streaming.window, "refresh": streaming.refresh}} if n_window else {})}
     bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc="transformer", disable=not progress)
     t0, ntok = time.perf_counter(), 0
     for step in bar:
         model.train()
         _set_lr(opt, sched.lr_at(step))
-        text, tin, tgt, lengths = _token_batch(seqs, caps, emb, rng, sched.batch_size, cfg, by_length)
-        loss, stats = model.loss(text, tin, tgt, lengths)
+        # clips and streaming windows as two batches: each is padded to its own longest example only
+        batches = [_pad(_clip_examples(seqs, caps, emb, rng, sched.batch_size, cfg, by_length), cfg)]
+        if n_window:
+            batches.append(_pad(_window_examples(timelines, emb, rng, n_window, cfg, streaming), cfg))
+        parts = [model.loss(*b) for b in batches]
+        count = sum(st["count"] for _, st in parts)
+        loss = sum(part * st["count"] for part, st in parts) / count          # the mean over every target
+        stats = {"acc": sum(st["acc"] * st["count"] for _, st in parts) / count}
+        lengths = torch.cat([b[3] for b in batches])
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
@@ -256,7 +302,7 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
         if ((step + 1) % sched.val_every == 0 or last) and val_seqs:
             model.eval()
             with torch.no_grad():
-                vloss, vstats = model.loss(*_token_batch(val_seqs, val_caps, emb, val_rng, 64, cfg))
+                vloss, vstats = model.loss(*_pad(_clip_examples(val_seqs, val_caps, emb, val_rng, 64, cfg), cfg))
             meta["val"] = {"loss": vloss.item(), "acc": vstats["acc"].item()}
             bar.write(f"transformer step {step + 1}: val loss {vloss.item():.3f}, acc {vstats['acc'].item():.3f}")
         if (step + 1) % sched.ckpt_every == 0 or last:

@@ -10,7 +10,9 @@
    teacher-forced: both variants step through the fp32 greedy sequence, each with its own text encoder and
    cache, and we count the (step, level) pairs where their argmaxes agree: that is what int8 changes per step.
    Free-running greedy agreement (each variant follows its own tokens) is printed too, not gated: after the
-   first differing token the two runs are different motions, so it measures chaos as much as quantization.
+   first differing token the two runs are different motions, so it measures chaos as much as quantization;
+4. endless streams (bundles trained for them): torch and ORT fp32 through one 1,000-step stream with context
+   rebuilds and prompt switches: identical greedy tokens (the count of steps before the first difference).
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ import numpy as np
 import torch
 
 from mogo_runtime.bundle import Bundle
-from mogo_runtime.decoding import GenerationTask, decode_tokens
+from mogo_runtime.decoding import EndlessLoop, GenerationTask, decode_tokens
 from mogo_runtime.engine import OrtBackend, open_backend
 from mogo_runtime.features import recover_from_ric
 from mogo_runtime.sampling import GREEDY
@@ -169,6 +171,32 @@ def check_end_to_end(gen: TorchGenerator, fp32: OrtBackend, int8, report: Report
                cos >= th.int8_text_cosine, fmt="{:.4f}")
 
 
+def endless_tokens(backend, prompts: list[str], streaming, steps: int, switch_every: int) -> np.ndarray:
+    """Greedy tokens of one endless stream (EndlessLoop) that cycles through `prompts`, switching every
+    `switch_every` tokens: -> (steps, L). Exercises context rebuilds (window slides) and prompt switches."""
+    embs = backend.encode_text(prompts)
+    loop = EndlessLoop(backend, embs[:1], GREEDY, [0], streaming.window, streaming.refresh)
+    out = []
+    for t in range(steps):
+        if t and t % switch_every == 0:
+            loop.set_prompt(embs[(t // switch_every) % len(prompts)][None])
+        out.append(loop.step()[0])
+    return np.stack(out)
+
+
+def check_endless(gen: TorchGenerator, fp32: OrtBackend, streaming, report: Report, steps: int = 1000,
+                  switch_every: int = 97) -> None:
+    """Torch and ORT fp32 through the same endless stream: identical greedy tokens, step by step."""
+    prompts = list(PROMPTS)
+    a = endless_tokens(gen.backend, prompts, streaming, steps, switch_every)
+    b = endless_tokens(fp32, prompts, streaming, steps, switch_every)
+    same = np.all(a == b, axis=1)
+    first = int(np.argmin(same)) if not same.all() else steps
+    report.add(f"endless stream, greedy tokens identical torch vs ORT fp32 ({steps} steps, rebuild every "
+               f"{streaming.refresh + 1}, switch every {switch_every})", first, f"= {steps}", first == steps,
+               fmt="{:.0f}")
+
+
 def verify(bundle_path: str | Path, ckpt_dir: str | Path, th: Thresholds = Thresholds(), int8: bool = True,
            prompts=PROMPTS) -> Report:
     bundle = Bundle.load(bundle_path)
@@ -178,4 +206,6 @@ def verify(bundle_path: str | Path, ckpt_dir: str | Path, th: Thresholds = Thres
     report = Report()
     check_graphs(gen, fp32, report, th)
     check_end_to_end(gen, fp32, q, report, th, prompts)
+    if bundle.manifest.streaming is not None:
+        check_endless(gen, fp32, bundle.manifest.streaming, report)
     return report

@@ -6,14 +6,18 @@
       texts/<id>.txt               lines `caption#word/POS ...#start#end`
       labels/<id>.txt              optional: an action label (the procedural dataset writes these)
       Mean.npy Std.npy             (D,) feature statistics
+      dataset.json                 optional: its "segments" give each long clip's actions (family, start
+                                   and end frame), as the procedural dataset writes them
 
 As in T2M's Text2MotionDataset: a caption with start = end = 0 describes the whole clip; one with a
 time span describes frames [start * fps, end * fps) only, which become an item of their own; items
-shorter than `min_frames` or not shorter than `max_frames` are dropped. Unlike T2M, every problem with
-the files is an error naming the file, not a silent skip.
+shorter than `min_frames` or not shorter than `max_frames` are dropped. A span item's label is the family
+of the segment it covers where dataset.json has the clip's segments, else the clip's label. Unlike T2M,
+every problem with the files is an error naming the file, not a silent skip.
 """
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +39,12 @@ class MotionItem(NamedTuple):
     features: np.ndarray         # (T, D) float32, not normalised
     captions: list[str]
     label: str | None
+
+
+class Segment(NamedTuple):
+    family: str
+    start: int                   # frames [start, end) of the clip
+    end: int
 
 
 class Caption(NamedTuple):
@@ -83,6 +93,29 @@ def read_features(path: Path, dim: int, dataset: str) -> np.ndarray:
     return x.astype(np.float32, copy=False)
 
 
+def read_segments(root: Path) -> dict[str, list[Segment]]:
+    """clip id -> its segments, from dataset.json's "segments" ({} without the file or the key)."""
+    path = root / "dataset.json"
+    if not path.is_file():
+        return {}
+    try:
+        table = json.loads(path.read_text(encoding="utf-8")).get("segments") or {}
+        return {cid: [Segment(str(s["family"]), int(s["start"]), int(s["end"])) for s in segs]
+                for cid, segs in table.items()}
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
+        raise ValueError(f"{path}: unreadable segments ({e!r})") from None
+
+
+def _segment_family(segments: list[Segment], a: int, b: int) -> str | None:
+    """The family of the segment covering most of frames [a, b), if one covers at least half of them."""
+    best, cover = None, 0
+    for s in segments:
+        c = min(b, s.end) - max(a, s.start)
+        if c > cover:
+            best, cover = s.family, c
+    return best if 2 * cover >= b - a else None
+
+
 def read_split(root: Path, split: str) -> list[str]:
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; expected one of {SPLITS}")
@@ -104,6 +137,7 @@ class MotionDataset:
     mean: np.ndarray             # (D,) float32
     std: np.ndarray
     items: list[MotionItem] = field(default_factory=list)
+    segments: dict[str, list[Segment]] = field(default_factory=dict)  # clip id -> its actions, in order
 
     @classmethod
     def load(cls, root, split: str = "train", skeleton: str = "humanml3d", min_frames: int | None = None,
@@ -119,6 +153,8 @@ class MotionDataset:
         mean, std = load_mean_std(root, dim)
         labels_dir = root / "labels"
         ids = read_split(root, split)
+        all_segments = read_segments(root)
+        segments = {cid: all_segments[cid] for cid in ids if cid in all_segments}
 
         items: list[MotionItem] = []
         for clip_id in ids:
@@ -144,11 +180,12 @@ class MotionDataset:
             for (a, b), texts in spans.items():
                 part = features[a:b]
                 if min_frames <= len(part) < max_frames:
-                    items.append(MotionItem(f"{clip_id}:{a}-{b}", part, texts, label))
+                    family = _segment_family(segments.get(clip_id, []), a, b)
+                    items.append(MotionItem(f"{clip_id}:{a}-{b}", part, texts, family or label))
         if not items:
             raise ValueError(f"{root / (split + '.txt')}: no clip of {len(ids)} has {min_frames} <= frames < "
                              f"{max_frames}")
-        return cls(root, split, skel.name, skel.fps, mean, std, items)
+        return cls(root, split, skel.name, skel.fps, mean, std, items, segments)
 
     def __len__(self) -> int:
         return len(self.items)

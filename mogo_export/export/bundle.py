@@ -23,7 +23,7 @@ from onnxruntime.quantization import QuantType, quantize_dynamic
 
 from mogo_runtime.bundle import sha256_file
 from mogo_runtime.files import write_atomic
-from mogo_runtime.manifest import (SCHEMA, SCHEMA_VERSION, GraphFile, GraphSpec, Manifest, Normalization,
+from mogo_runtime.manifest import (SCHEMA, SCHEMA_VERSION, GraphFile, GraphSpec, Manifest, Normalization, StreamingSpec,
                                    TensorSpec, TextEncoderSpec)
 from mogo_runtime.sampling import SamplingConfig
 from mogo_runtime.skeleton import get_skeleton
@@ -135,6 +135,7 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
                                          max_length=int(te_meta["max_length"]), pooling=te_meta.get("pooling", "mean")),
             sampling_defaults=SAMPLING_DEFAULTS,
             tca=tca,
+            streaming=StreamingSpec(**trained.streaming) if trained.streaming else None,
             graphs={g: _graph_spec(io) for g, io in graphs.items()},
             variants=variants,
             files={p.name: (p.stat().st_size, sha256_file(p)) for p in sorted(tmp.iterdir())},

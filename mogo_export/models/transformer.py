@@ -47,8 +47,8 @@ class RelativeSelfAttention(nn.Module):
 
     score(i, j) = (q_i + u) . k_j + (q_i + v) . phi[min(i - j, max_rel_dist)], scaled by 1/sqrt(head_dim).
     Query i of a call sits at step P + i where P = past length; key j at step j. Nothing else carries
-    position, so a runtime may slide a window over the cache: keep step 0 (the PnQ prefix, the only key
-    that carries the text) and more than max_rel_dist recent steps, and every distance stays exact.
+    position, so the same weights serve any context; endless streams rebuild theirs (prefix + recent steps)
+    rather than dropping old keys, whose successors' keys were computed attending to them (docs/bundle.md).
     """
 
     def __init__(self, cfg: TransformerConfig):
@@ -206,13 +206,14 @@ class RQHCTransformer(nn.Module):
         """Cross-entropy of eq. 11, averaged over the valid (step, level) pairs, and accuracy.
 
         tokens_in (B, S, L): [BOS, t_0, ..., t_{T-1}, PAD...]; targets (B, S, L): [t_0, ..., t_{T-1}, END, PAD...];
-        lengths (B,): T, the motion length in tokens, so the first T + 1 steps (END included) count.
-        Returns (loss, {"acc": (), "acc_per_level": (L,)}).
+        lengths (B,): T, the motion length in tokens, so the first T + 1 steps (END included) count. A PAD target
+        inside that length is context, not a target (streaming windows, see train._window_examples).
+        Returns (loss, {"acc": (), "acc_per_level": (L,), "count": () the (step, level) pairs averaged over}).
         """
         B, S, L = tokens_in.shape
         logits = self(text_emb, tokens_in)  # (B, S, L, K+1)
         valid = torch.arange(S, device=tokens_in.device) <= lengths.unsqueeze(1)  # (B, S)
-        valid = valid.unsqueeze(-1).expand(B, S, L)  # (B, S, L)
+        valid = valid.unsqueeze(-1).expand(B, S, L) & (targets != self.cfg.pad_id)  # (B, S, L)
         tgt = targets.masked_fill(~valid, 0)  # PAD is not a class of the head
         ce = F.cross_entropy(logits.flatten(0, 2), tgt.flatten(), reduction="none").view(B, S, L)
         n = valid.sum()
@@ -221,4 +222,4 @@ class RQHCTransformer(nn.Module):
             hit = (logits.argmax(-1) == tgt) & valid  # (B, S, L)
             acc = hit.sum() / n
             acc_per_level = hit.sum(dim=(0, 1)) / valid.sum(dim=(0, 1))  # (L,)
-        return loss, {"acc": acc, "acc_per_level": acc_per_level}
+        return loss, {"acc": acc, "acc_per_level": acc_per_level, "count": n}

@@ -18,7 +18,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import queue
 import sys
+import threading
 import time
 import warnings
 from contextlib import contextmanager
@@ -90,6 +92,10 @@ def build_parser() -> argparse.ArgumentParser:
                                         '{"frame": i, "time": seconds, "joints": [[x, y, z], ...]} '
                                         '(metres, y up, joint order of the bundle\'s skeleton).')
     add_generation_args(stream)
+    stream.add_argument("--follow", action="store_true",
+                        help="read new prompts from stdin, one per line, each followed from the next token; an "
+                             '{"event": "prompt", ...} line marks each switch (needs a bundle trained for endless '
+                             "streams)")
     stream.set_defaults(run=cmd_stream)
 
     info = sub.add_parser("info", help="what a bundle holds, and whether its files are intact")
@@ -196,7 +202,11 @@ def cmd_generate(args) -> int:
 def cmd_stream(args) -> int:
     check_texts([args.text])         # before any work: an empty prompt should not cost a bundle load
     align = _align(args)
+    prompts = _read_lines(sys.stdin) if args.follow else None    # reading starts now: nothing typed is lost
     gen = _load_generator(args)
+    if args.follow and not gen.endless:
+        raise UsageError(f"--follow needs a bundle trained for endless streams; {gen.bundle.path} has no "
+                         f"'streaming' section in its manifest")
     with _warnings_as_lines():
         frames = gen.stream(args.text, seconds=args.seconds, seed=args.seed, align=align,
                             sampling=_sampling(args, gen.sampling_defaults))
@@ -205,6 +215,15 @@ def cmd_stream(args) -> int:
     out = sys.stdout
     try:
         for f in frames:
+            while prompts is not None and not prompts.empty():
+                text = prompts.get_nowait()
+                if not text.strip():
+                    continue
+                with _warnings_as_lines():
+                    frames.set_prompt(text, align=align)
+                event = {"event": "prompt", "token": frames.tokens, "frame": f.index, "text": text,
+                         **({"aligned": frames.aligned_text} if align else {})}
+                out.write(json.dumps(event) + "\n")
             joints = [[round(float(c), JOINT_DECIMALS) for c in j] for j in f.joints]
             out.write(json.dumps({"frame": f.index, "time": round(f.time, 6), "joints": joints},
                                  separators=(",", ":")) + "\n")
@@ -216,6 +235,18 @@ def cmd_stream(args) -> int:
         os.dup2(devnull, out.fileno())
         os.close(devnull)
     return 0
+
+
+def _read_lines(stream) -> queue.Queue:
+    """Lines of `stream` as they arrive, read by a daemon thread, so frames keep flowing while stdin is quiet."""
+    lines: queue.Queue = queue.Queue()
+
+    def read():
+        for line in stream:
+            lines.put(line.rstrip("\n"))
+
+    threading.Thread(target=read, daemon=True).start()
+    return lines
 
 
 def cmd_info(args) -> int:

@@ -11,13 +11,14 @@ the torch reference, the parity verifier and evaluation all run it, so they cann
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
 from .features import recover_from_ric
-from .manifest import ModelDims
+from .manifest import ModelDims, StreamingSpec
 from .motion import RootIntegrator
 from .sampling import SamplingConfig, apply_guidance, sample
 
@@ -94,6 +95,63 @@ def generate_tokens(backend: Backend, text_emb: np.ndarray, sampling: SamplingCo
         # Ended prompts keep feeding a valid code; their rows are independent and their output is ignored.
         feed = np.where(alive[:, None], picked, 0)
         tokens = np.concatenate([feed, feed], axis=0)[:, None] if guided else feed[:, None]
+
+
+class EndlessLoop:
+    """The token loop of endless streams: never ends by itself, follows a new prompt from the next token, and
+    keeps a bounded context (docs/bundle.md, "Endless streams").
+
+    The context is the current prompt's prefix (BOS) plus the motion tokens since the last rebuild. Once it holds
+    window + refresh tokens, or when the prompt changes, it is rebuilt: one step call on [BOS, last `window`
+    tokens] with an empty cache, the contexts the model was trained on (mogo_export.train._window_examples). So a
+    step at minute 10 costs what it costs at minute 1. Until the first rebuild it computes exactly what
+    `generate_tokens` computes with a fixed length (END forbidden): same tokens, same random draws.
+    """
+
+    def __init__(self, backend: Backend, text_emb: np.ndarray, sampling: SamplingConfig, seeds: list[int],
+                 window: int, refresh: int):
+        self.backend, self.sampling, self.window, self.refresh = backend, sampling, window, refresh
+        self.rngs = make_rngs(seeds)
+        self.batch = len(seeds)
+        self.guided = sampling.guidance != 1.0
+        self.history = np.zeros((self.batch, window + refresh, backend.dims.num_levels), np.int64)
+        self.count = 0                 # tokens picked so far
+        self.cached = 0                # motion tokens in the cache (after the prompt prefix)
+        self.past = None               # None: the next step rebuilds the context
+        self.set_prompt(text_emb)
+
+    def set_prompt(self, text_emb: np.ndarray) -> None:
+        """(B, text_dim) embeddings to follow from the next token on."""
+        if text_emb.shape != (self.batch, self.backend.dims.text_dim):
+            raise ValueError(f"expected ({self.batch}, {self.backend.dims.text_dim}) text embeddings, got "
+                             f"{text_emb.shape}")
+        # the unconditional branch is the all-zero text embedding the model was trained to see
+        self.rows_emb = np.concatenate([text_emb, np.zeros_like(text_emb)]) if self.guided else text_emb
+        self.past = None
+
+    def step(self) -> np.ndarray:
+        """-> the next tokens (B, L) of every stream."""
+        dims, B = self.backend.dims, self.batch
+        if self.past is None or self.cached == self.window + self.refresh:
+            n = min(self.count, self.window)
+            bos = np.full((B, 1, dims.num_levels), dims.bos_id, np.int64)
+            tokens = np.concatenate([bos, self.history[:, self.history.shape[1] - n:]], axis=1)
+            self.past, self.cached = self.backend.empty_past(len(self.rows_emb)), n
+        else:
+            tokens, self.cached = self.history[:, -1:], self.cached + 1
+        if self.guided:
+            tokens = np.concatenate([tokens, tokens])
+        logits, self.past = self.backend.step(self.rows_emb, tokens, self.past)
+        logits = logits[:, -1]                                                  # (rows, L, K + 1)
+        if self.guided:
+            logits = apply_guidance(logits[:B], logits[B:], self.sampling.guidance)
+        logits = np.array(logits, dtype=np.float32)                             # own copy: masked below
+        logits[:, :, dims.end_id] = -np.inf                                     # a stream never ends itself
+        picked = sample(logits, self.sampling, self.rngs)                       # (B, L)
+        self.history[:, :-1] = self.history[:, 1:]
+        self.history[:, -1] = picked
+        self.count += 1
+        return picked
 
 
 def collect_tokens(steps: Iterator[tuple[np.ndarray, np.ndarray]], batch: int, num_levels: int):
@@ -177,47 +235,81 @@ class Generated:
 @dataclass
 class GenerationTask:
     """The generation recipe for one backend and one set of settings: prompts' embeddings and seeds in,
-    tokens, features and joints out, all at once (`run`) or frame by frame (`stream`).
+    tokens, features and joints out, all at once (`run`, `timeline`) or frame by frame (`stream`).
 
     `fixed_tokens` fixes the length (END never chosen); None lets the model end each motion, at most
-    `max_tokens`.
+    `max_tokens`. With `streaming` (a bundle trained for endless streams), fixed lengths and streams run the
+    EndlessLoop: any length, bounded context; the first window + refresh + 1 tokens are the same either way.
     """
 
     backend: Backend
     sampling: SamplingConfig
     max_tokens: int
     fixed_tokens: int | None = None
+    streaming: StreamingSpec | None = None
 
     @property
     def num_joints(self) -> int:
         return (self.backend.dims.feature_dim + 1) // 12     # HumanML3D layout: D = 12 J - 1
 
-    def steps(self, text_emb: np.ndarray, seeds: list[int]) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        return generate_tokens(self.backend, text_emb, self.sampling, make_rngs(seeds), self.max_tokens,
-                               self.fixed_tokens)
+    def loop(self, text_emb: np.ndarray, seeds: list[int]) -> EndlessLoop:
+        if self.streaming is None:
+            raise ValueError("this bundle was not trained for endless streams (its manifest has no 'streaming' "
+                             "section): re-export it from checkpoints trained on data with timed captions")
+        return EndlessLoop(self.backend, text_emb, self.sampling, seeds, self.streaming.window, self.streaming.refresh)
+
+    def steps(self, text_emb: np.ndarray, seeds: list[int],
+              loop: EndlessLoop | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        if loop is None and self.streaming is not None and self.fixed_tokens is not None:
+            loop = self.loop(text_emb, seeds)
+        if loop is None:
+            return generate_tokens(self.backend, text_emb, self.sampling, make_rngs(seeds), self.max_tokens,
+                                   self.fixed_tokens)
+        alive = np.ones(len(seeds), bool)
+        return ((loop.step(), alive) for _ in (itertools.count() if self.fixed_tokens is None
+                                               else range(self.fixed_tokens)))
 
     def tokens(self, text_emb: np.ndarray, seeds: list[int],
                progress: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
         """-> one (T_b, L) token array per prompt. `progress(step, limit)` is called after every step."""
-        steps = self.steps(text_emb, seeds)
+        return self._collect(self.steps(text_emb, seeds), len(seeds), progress)
+
+    def _collect(self, steps, batch: int, progress) -> list[np.ndarray]:
         if progress is not None:
             steps = _report(steps, progress, self.fixed_tokens or self.max_tokens)
-        return collect_tokens(steps, len(seeds), self.backend.dims.num_levels)
+        return collect_tokens(steps, batch, self.backend.dims.num_levels)
 
     def run(self, text_emb: np.ndarray, seeds: list[int],
             progress: Callable[[int, int], None] | None = None) -> list[Generated]:
-        token_seqs = self.tokens(text_emb, seeds, progress)
+        return self._decoded(self.tokens(text_emb, seeds, progress))
+
+    def timeline(self, text_embs: np.ndarray, starts: list[int], seed: int,
+                 progress: Callable[[int, int], None] | None = None) -> Generated:
+        """One character following prompt i (text_embs[i]) from token starts[i] on (starts[0] = 0)."""
+        loop = self.loop(text_embs[:1], [seed])
+        switch_at = dict(zip(starts[1:], range(1, len(starts))))
+
+        def steps():
+            for t, item in enumerate(self.steps(text_embs[:1], [seed], loop)):
+                yield item
+                if t + 1 in switch_at:
+                    loop.set_prompt(text_embs[switch_at[t + 1]][None])
+        return self._decoded(self._collect(steps(), 1, progress))[0]
+
+    def _decoded(self, token_seqs: list[np.ndarray]) -> list[Generated]:
         return [Generated(tok, f, recover_from_ric(f, self.num_joints))
                 for tok, f in zip(token_seqs, decode_tokens(self.backend, token_seqs))]
 
-    def stream(self, text_emb: np.ndarray, seed: int, chunk: int = 4) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """One prompt's frames as its tokens are sampled: yields (features (n, D), joints (n, J, 3)), n >= 1."""
+    def stream(self, text_emb: np.ndarray, seed: int, chunk: int = 4,
+               loop: EndlessLoop | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """One prompt's frames as its tokens are sampled: yields (features (n, D), joints (n, J, 3)), n >= 1.
+        With `loop` (an EndlessLoop of this prompt) the stream follows that loop's prompt changes."""
         streamer = FrameStreamer(self.backend, 1, chunk)     # checks chunk now, not at the first frame
-        return self._stream(text_emb, seed, streamer)
+        return self._stream(self.steps(text_emb, [seed], loop), streamer)
 
-    def _stream(self, text_emb, seed, streamer: FrameStreamer):
+    def _stream(self, steps, streamer: FrameStreamer):
         integrator = RootIntegrator(self.num_joints)
-        for picked, alive in self.steps(text_emb, [seed]):
+        for picked, alive in steps:
             if not alive[0]:
                 break
             features = streamer.push(picked)[0]

@@ -29,6 +29,8 @@ from .motion import Motion
 from .sampling import SamplingConfig
 from .text import check_texts
 
+MAX_SECONDS = 3600.0   # the longest fixed length on an endless bundle: tokens and frames are kept for the whole motion
+
 if TYPE_CHECKING:  # tca is imported when alignment is first used: its patterns cost ~50 ms of every cold start
     from .tca import Aligner
 
@@ -44,16 +46,38 @@ class Frame:
 
 
 class FrameStream:
-    """What `MotionGenerator.stream` returns: an iterator of Frames, plus the prompt and its aligned text."""
+    """What `MotionGenerator.stream` returns: an iterator of Frames, the prompt it follows now and its aligned
+    text, and, on a bundle trained for endless streams, `set_prompt` to change what the character does."""
 
-    def __init__(self, frames: Iterator[Frame], text: str, aligned_text: str | None):
-        self._frames, self.text, self.aligned_text = frames, text, aligned_text
+    def __init__(self, gen: "MotionGenerator", task: GenerationTask, emb: np.ndarray, seed: int, chunk: int,
+                 text: str, aligned_text: str | None):
+        self._gen, self.text, self.aligned_text = gen, text, aligned_text
+        self._loop = task.loop(emb, [seed]) if task.streaming is not None else None
+        self._frames = gen._frames(task.stream(emb, seed, chunk, self._loop))
+        self.switches: list[tuple[int, str, str | None]] = []   # (token, text, aligned text) of each set_prompt
 
     def __iter__(self) -> "FrameStream":
         return self
 
     def __next__(self) -> Frame:
         return next(self._frames)
+
+    @property
+    def tokens(self) -> int:
+        """Tokens sampled so far (frames lag behind by the decoding chunk)."""
+        return self._loop.count if self._loop is not None else 0
+
+    def set_prompt(self, text: str, align: bool | Aligner = False) -> None:
+        """Follow `text` from the next token on (the frames already decoded are not changed)."""
+        if self._loop is None:
+            raise ValueError("this bundle was not trained for endless streams (its manifest has no 'streaming' "
+                             "section), so its streams cannot change prompt")
+        if not isinstance(text, str):
+            raise TypeError(f"set_prompt() takes one prompt (str), got {type(text).__name__}")
+        emb, aligned = self._gen._condition(check_texts([text]), align)
+        self._loop.set_prompt(emb)
+        self.text, self.aligned_text = text, aligned[0]
+        self.switches.append((self._loop.count, text, aligned[0]))
 
     def close(self) -> None:
         self._frames.close()
@@ -93,18 +117,27 @@ class MotionGenerator:
     def aligner(self, aligner: Aligner) -> None:
         self._aligner = aligner
 
-    def generate(self, text: str | list[str], *, seconds: float | None = None, seed: int | list[int] = 0,
-                 sampling: SamplingConfig | None = None, align: bool | Aligner = False,
+    @property
+    def endless(self) -> bool:
+        """Whether the bundle was trained for endless streams (stream without end, set_prompt, long lengths)."""
+        return self.bundle.manifest.streaming is not None
+
+    def generate(self, text: str | list[str] | list[tuple[str, float]], *, seconds: float | None = None,
+                 seed: int | list[int] = 0, sampling: SamplingConfig | None = None, align: bool | Aligner = False,
                  progress: Callable[[int, int], None] | None = None) -> Motion | list[Motion]:
         """One motion per prompt (a list for a list), all prompts in one batched loop.
 
         Prompt i of a list uses seed `seed + i` (or `seed[i]`), so it gets the motion a lone run with that
         seed gets. `seconds` fixes the length (rounded half up to whole tokens, END never chosen); None lets
-        the model end the motion, at most `max_seconds`. `sampling` None: the bundle's sampling defaults.
-        `align=True` (or an Aligner) rewrites each prompt into the training captions' style first (TCA); the
-        motion's `aligned_text` says what the model was conditioned on. `progress(step, limit)` is called
-        after every step.
+        the model end the motion, at most `max_seconds`. On a bundle trained for endless streams a fixed length
+        may be any length up to MAX_SECONDS (`seconds=600`: a 10-minute motion), and a timeline
+        `[(prompt, start_seconds), ...]` (starts from 0, increasing; `seconds` required) gives one motion that
+        follows each prompt from its start. `sampling` None: the bundle's sampling defaults. `align=True` (or an
+        Aligner) rewrites each prompt into the training captions' style first (TCA); the motion's
+        `aligned_text` says what the model was conditioned on. `progress(step, limit)` is called after every step.
         """
+        if isinstance(text, (list, tuple)) and text and all(isinstance(t, tuple) for t in text):
+            return self._timeline(list(text), seconds, seed, sampling, align, progress)
         texts = check_texts([text] if isinstance(text, str) else text)
         task, emb, seeds, aligned = self._prepare(texts, seconds, seed, sampling, align)
         results = task.run(emb, seeds, progress)
@@ -113,20 +146,40 @@ class MotionGenerator:
                    for t, r, s, a in zip(texts, results, seeds, aligned)]
         return motions[0] if isinstance(text, str) else motions
 
+    def _timeline(self, timeline, seconds, seed, sampling, align, progress) -> Motion:
+        if seconds is None:
+            raise ValueError("a timeline needs seconds=, the length of the whole motion")
+        if not all(len(item) == 2 and isinstance(item[0], str) for item in timeline):
+            raise ValueError("a timeline is a list of (prompt, start_seconds) pairs")
+        texts = check_texts([t for t, _ in timeline])
+        total = self.tokens_for(seconds)
+        starts = [self.tokens_for(t) if t else 0 for _, t in timeline] if timeline[0][1] == 0 else None
+        if starts is None or any(b <= a for a, b in zip(starts, starts[1:])) or starts[-1] >= total:
+            raise ValueError(f"timeline starts must begin at 0 and increase, each before the end ({seconds} s); got "
+                             f"{[t for _, t in timeline]}")
+        task, emb, seeds, aligned = self._prepare(texts, seconds, [expand_seeds(seed, 1)[0]] * len(texts),
+                                                  sampling, align)
+        r = task.timeline(emb, starts, seeds[0], progress)
+        return Motion(text=" | ".join(texts), features=r.features, joints=r.joints, fps=self.dims.fps,
+                      tokens=r.tokens, skeleton=self.skeleton, seed=seeds[0],
+                      aligned_text=None if aligned[0] is None else " | ".join(aligned))
+
     def stream(self, text: str, *, seconds: float | None = None, seed: int = 0,
                sampling: SamplingConfig | None = None, align: bool | Aligner = False, chunk: int = 4) -> FrameStream:
         """Yield the frames of one prompt's motion as its tokens are sampled and decoded.
 
-        The first token's frames come at once; after that frames come `chunk` tokens at a time (chunk=1: every
-        token, at ~1.6x the decoding work; see decoding.FrameStreamer). The causal decoder makes them equal to
-        `generate(text, ..., seed=seed)`'s frames (to float rounding). Arguments are checked, and the prompt
-        aligned, when this is called, before the first frame is asked for; the returned stream's `aligned_text`
-        says what the model follows.
+        On a bundle trained for endless streams (`endless`) the stream has no end unless `seconds` is given, and
+        `set_prompt` on it changes the prompt from the next token; `close()` ends it. Otherwise the model ends
+        the motion, at most `max_seconds`. The first token's frames come at once; after that frames come `chunk`
+        tokens at a time (chunk=1: every token, at ~1.6x the decoding work; see decoding.FrameStreamer). The
+        causal decoder makes them equal to `generate(text, seconds=..., seed=seed)`'s frames (to float
+        rounding). Arguments are checked, and the prompt aligned, when this is called, before the first frame
+        is asked for; the returned stream's `aligned_text` says what the model follows.
         """
         if not isinstance(text, str):
             raise TypeError(f"stream() takes one prompt (str), got {type(text).__name__}; use generate() for a batch")
         task, emb, seeds, aligned = self._prepare(check_texts([text]), seconds, seed, sampling, align)
-        return FrameStream(self._frames(task.stream(emb, seeds[0], chunk)), text, aligned[0])
+        return FrameStream(self, task, emb, seeds[0], chunk, text, aligned[0])
 
     def _frames(self, chunks) -> Iterator[Frame]:
         index = 0
@@ -143,14 +196,18 @@ class MotionGenerator:
         elif not isinstance(sampling, SamplingConfig):
             raise ValueError(f"sampling must be a SamplingConfig or None (the bundle's defaults), got {sampling!r}")
         seeds = expand_seeds(seed, len(texts))
+        emb, aligned = self._condition(texts, align)
+        task = GenerationTask(self.backend, sampling, self.max_tokens, fixed, self.bundle.manifest.streaming)
+        return task, emb, seeds, aligned
+
+    def _condition(self, texts: list[str], align) -> tuple[np.ndarray, list[str | None]]:
+        """-> (text embeddings (B, text_dim), aligned texts or None each)."""
         prompts = self.align(texts, align)
         if prompts is None:
-            emb, aligned = self.backend.encode_text(texts), [None] * len(texts)
-        else:
-            from .tca import apply_alignment
+            return self.backend.encode_text(texts), [None] * len(texts)
+        from .tca import apply_alignment
 
-            emb, aligned = apply_alignment(prompts, self.backend.encode_text), [p.text for p in prompts]
-        return GenerationTask(self.backend, sampling, self.max_tokens, fixed), emb, seeds, aligned
+        return apply_alignment(prompts, self.backend.encode_text), [p.text for p in prompts]
 
     def align(self, texts: list[str], align: bool | Aligner = True):
         """The aligned prompts for `texts` (None when `align` is False): `align` is True or an Aligner."""
@@ -168,14 +225,15 @@ class MotionGenerator:
         if seconds is None:
             return None
         per_token = self.dims.downsample / self.dims.fps
-        allowed = (f"between {per_token:g} and {self.max_seconds:g} seconds for this bundle ({self.dims.downsample} "
-                   f"frames per token at {self.dims.fps:g} fps, at most {self.max_tokens} tokens)")
+        most, limit = (MAX_SECONDS, "endless streams") if self.endless else (self.max_seconds, "this bundle")
+        allowed = (f"between {per_token:g} and {most:g} seconds for {limit} ({self.dims.downsample} frames per "
+                   f"token at {self.dims.fps:g} fps)")
         if isinstance(seconds, (bool, np.bool_)) or not isinstance(seconds, (int, float, np.integer, np.floating)):
             raise ValueError(f"seconds must be a number {allowed}, got {seconds!r}")
         value = float(seconds)
-        if not math.isfinite(value) or not per_token / 2 <= value <= self.max_seconds + per_token:
+        if not math.isfinite(value) or not per_token / 2 <= value <= most + per_token:
             raise ValueError(f"seconds must be {allowed}, got {seconds!r}")
         tokens = math.floor(value / per_token + 0.5 + 1e-9)   # the epsilon keeps 6.0 s from landing just below
-        if not 1 <= tokens <= self.max_tokens:
+        if not 1 <= tokens <= (round(most / per_token) if self.endless else self.max_tokens):
             raise ValueError(f"seconds must be {allowed}, got {seconds!r}")
         return tokens

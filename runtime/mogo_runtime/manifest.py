@@ -223,6 +223,16 @@ class Normalization:                 # mode NORMALIZATION: the decoder applies t
 
 
 @dataclass(frozen=True)
+class StreamingSpec:
+    """The context policy of endless streams the model was trained for (docs/bundle.md, "Endless streams"): the
+    current prompt's prefix plus at most window + refresh motion tokens, rebuilt from the last `window` tokens
+    when full or when the prompt changes."""
+
+    window: int
+    refresh: int
+
+
+@dataclass(frozen=True)
 class Manifest:
     model: ModelDims
     skeleton: Skeleton
@@ -235,6 +245,7 @@ class Manifest:
     cache: CacheNames = CacheNames()
     producer: dict | None = None                # informative only: who wrote the bundle, from what
     tca: dict | None = None                     # the caption index section, read by mogo_runtime.tca
+    streaming: StreamingSpec | None = None      # None: not trained for endless streams
 
     @property
     def layout(self) -> FeatureLayout:
@@ -261,6 +272,7 @@ class Manifest:
             "normalization": {"mode": NORMALIZATION, **asdict(self.normalization)},
             "text_encoder": asdict(self.text_encoder), "sampling_defaults": self.sampling_defaults.to_dict(),
             "cache": asdict(self.cache), **({"tca": self.tca} if self.tca else {}),
+            **({"streaming": asdict(self.streaming)} if self.streaming else {}),
             "graphs": {g: asdict(s) for g, s in self.graphs.items()},          # tuples are written as lists
             "variants": {v: {g: asdict(e) for g, e in gs.items()} for v, gs in self.variants.items()},
             "files": {n: {"bytes": b, "sha256": h} for n, (b, h) in self.files.items()},
@@ -286,7 +298,9 @@ class Manifest:
                    cache=_parse_cache(f.sub("cache")), producer=producer, files=_parse_files(f.sub("files")),
                    graphs={g: GraphSpec.parse(f.sub("graphs").sub(g)) for g in GRAPHS},
                    variants=_parse_variants(f.sub("variants")),
-                   tca=None if f.get("tca", None) is None else f.sub("tca").obj).checked(where)
+                   tca=None if f.get("tca", None) is None else f.sub("tca").obj,
+                   streaming=None if f.get("streaming", None) is None else _parse_streaming(f.sub("streaming"),
+                                                                                             model)).checked(where)
 
     def checked(self, where: str) -> "Manifest":
         """Agreement between sections: files named by variants are listed, the step graph's I/O is the cache."""
@@ -406,3 +420,11 @@ def _parse_variants(f: _Fields) -> dict[str, dict[str, GraphFile]]:
             entries[g] = GraphFile(file=e.str("file"), quantization=q or None)
         variants[v] = entries
     return variants
+
+
+def _parse_streaming(f: _Fields, model: ModelDims) -> StreamingSpec:
+    spec = StreamingSpec(window=f.int("window", 1), refresh=f.int("refresh", 1))
+    if spec.window + spec.refresh > model.max_rel_dist:   # as trained: every distance to the prefix is distinct
+        f.fail("refresh", f"window + refresh is {spec.window + spec.refresh}, more than model.max_rel_dist "
+                          f"{model.max_rel_dist}")
+    return spec

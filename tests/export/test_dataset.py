@@ -1,9 +1,12 @@
-"""MotionDataset: the HumanML3D / KIT-ML folder layout, sub-clip captions, and errors that name the file."""
+"""MotionDataset: the HumanML3D / KIT-ML folder layout, sub-clip captions, long sequences' segments, and errors
+that name the file."""
+import json
+
 import numpy as np
 import pytest
 
 from mogo_export.data import procedural as P
-from mogo_export.data.dataset import MotionDataset, parse_caption_line
+from mogo_export.data.dataset import MotionDataset, Segment, parse_caption_line
 
 LINE = "a person walks forward.#a/DET person/NOUN walk/VERB forward/ADV#0.0#0.0"
 
@@ -32,7 +35,7 @@ def feats(t, dim=263, seed=0):
 
 
 def test_loads_the_procedural_dataset(tmp_path):
-    root = P.build_dataset(tmp_path / "proc", num_clips=12, seed=2, progress=False, workers=1)
+    root = P.build_dataset(tmp_path / "proc", num_clips=12, seed=2, progress=False, workers=1, long_sequences=0)
     sizes = {}
     for split in ("train", "val", "test"):
         ds = MotionDataset.load(root, split)
@@ -50,6 +53,50 @@ def test_loads_the_procedural_dataset(tmp_path):
     x = ds[0].features
     np.testing.assert_allclose(ds.normalize(x), (x - ds.mean) / ds.std, rtol=1e-6)
     np.testing.assert_allclose(ds.denormalize(ds.normalize(x)), x, atol=1e-5)
+
+
+def test_long_sequences_load_as_their_segments(tmp_path):
+    root = P.build_dataset(tmp_path / "proc", num_clips=10, seed=5, progress=False, workers=1, long_sequences=3)
+    table = json.loads((root / "dataset.json").read_text())["segments"]
+    assert sorted(table) == ["000010", "000011", "000012"]
+    seen = []
+    for split in ("train", "val", "test"):
+        ds = MotionDataset.load(root, split)
+        whole = {it.clip_id: it for it in MotionDataset.load(root, split, max_frames=1300)}
+        for cid in sorted(set((root / f"{split}.txt").read_text().split()) & set(table)):
+            seen.append(cid)
+            segs = [Segment(s["family"], s["start"], s["end"]) for s in table[cid]]
+            assert ds.segments[cid] == segs
+            x = np.load(root / "new_joint_vecs" / f"{cid}.npy")
+            # the whole sequence (20-60 s) is past T2M's 200 frames; each action is an item, in order, with
+            # its own caption and its family as its label
+            items = [it for it in ds if it.clip_id.split(":")[0] == cid]
+            assert [it.clip_id for it in items] == [f"{cid}:{s.start}-{s.end}" for s in segs]
+            for it, s in zip(items, segs):
+                assert it.label == s.family and len(it.captions) == 1
+                np.testing.assert_array_equal(it.features, x[s.start:s.end])
+            label = (root / "labels" / f"{cid}.txt").read_text().strip()
+            assert label == "seq:" + "+".join(s.family for s in segs)
+            assert whole[cid].label == label and 1 <= len(whole[cid].captions) <= 2
+            assert len(whole[cid].features) == len(x) >= 399
+    assert sorted(seen) == ["000010", "000011", "000012"]  # one in each split
+    assert MotionDataset.load(root, "train").segments.keys() <= set(table)
+
+
+def test_span_labels_from_segments(tmp_path):
+    x = feats(150)
+    lines = [LINE, "a person jumps.#x/X#0.0#3.0", "a person waves.#x/X#2.5#7.45", "a person bows.#x/X#1.0#5.0"]
+    root = write_dataset(tmp_path, {"s": (x, lines, "seq:jump_in_place+wave_right_hand")})
+    (root / "dataset.json").write_text(json.dumps({"segments": {"s": [
+        {"family": "jump_in_place", "start": 0, "end": 60}, {"family": "wave_right_hand", "start": 60, "end": 150}]}}))
+    ds = MotionDataset.load(root)
+    # a span takes the family of the segment covering at least half of it (1.0-5.0 s: half each, the first)
+    assert [(it.clip_id, it.label) for it in ds] == [
+        ("s", "seq:jump_in_place+wave_right_hand"), ("s:0-60", "jump_in_place"), ("s:50-149", "wave_right_hand"),
+        ("s:20-100", "jump_in_place")]
+    (root / "dataset.json").write_text('{"segments": {"s": [{"family": "x"}]}}')
+    with pytest.raises(ValueError, match=r"dataset\.json: unreadable segments"):
+        MotionDataset.load(root)
 
 
 def test_subclip_captions_become_their_own_items(tmp_path):

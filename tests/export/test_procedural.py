@@ -1,4 +1,5 @@
-"""The procedural HumanML3D-layout dataset: determinism, layout, people-like motion, captions."""
+"""The procedural HumanML3D-layout dataset: determinism, layout, people-like motion, captions, long
+sequences, and every family doing what its captions say."""
 import json
 import re
 
@@ -7,9 +8,11 @@ import pytest
 
 from mogo_export.data import procedural as P
 from mogo_export.data.dataset import read_captions
-from mogo_export.data.procedural import captions, clips as C, families, locomotion, writer
+from mogo_export.data.humanml3d import extract_features
+from mogo_export.data.procedural import captions, clips as C, families, locomotion, sequences as S, writer
 from mogo_export.data.procedural.action import FULL_BUDGET, TimeBudget
-from mogo_export.data.procedural.pose import FPS, MAX_SECONDS
+from mogo_export.data.procedural.grounding import pose_to_joints
+from mogo_export.data.procedural.pose import FPS, MAX_SECONDS, Pose
 from mogo_runtime.features import FeatureLayout, recover_from_ric
 from mogo_runtime.skeleton import HUMANML3D
 
@@ -21,22 +24,30 @@ BONES = np.arange(1, HUMANML3D.num_joints)
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    # 27 clips: every 5th is a sequence, so the first 21 singles cover all 21 families
+    # 27 clips: every 5th is a sequence, so the first 21 singles cover all 21 families; then 27 // 10 = 2
+    # long sequences (ids 000027, 000028)
     return P.build_dataset(tmp_path_factory.mktemp("proc") / "ds", num_clips=27, seed=7, progress=False, workers=2)
+
+
+SHORT = [f"{i:06d}" for i in range(27)]
+LONG = ["000027", "000028"]
 
 
 @pytest.fixture(scope="module")
 def clips():
-    """World joints for 3 clips of every family and 6 sequences, straight from the generator."""
+    """World joints for 3 clips of every family, 6 sequences and 2 long sequences, straight from the generator."""
     out = []
     for f in FAMILIES:
         for s in range(3):
-            joints, _ = C.generate_clip((f,), np.random.default_rng([11, s, FAMILIES.index(f)]))
+            joints = C.generate_clip((f,), np.random.default_rng([11, s, FAMILIES.index(f)])).joints
             out.append((f, joints))
     for i, pair in enumerate([("walk_forward", "jump_in_place"), ("run", "sit_down"), ("kick_left", "turn_right"),
                               ("jump_forward", "walk_backward"), ("squat", "wave_left_hand"), ("bow", "clap")]):
-        joints, _ = C.generate_clip(pair, np.random.default_rng([12, i]))
+        joints = C.generate_clip(pair, np.random.default_rng([12, i])).joints
         out.append((C.label_for(pair), joints))
+    for i in range(2):
+        clip = S.generate_long(np.random.default_rng([13, i]))
+        out.append((C.label_for(tuple(s.family for s in clip.segments)), clip.joints))
     return out
 
 
@@ -48,16 +59,26 @@ def test_same_seed_same_bytes_whatever_the_workers(tmp_path):
     a = P.build_dataset(tmp_path / "a", num_clips=20, seed=3, progress=False, workers=1)
     b = P.build_dataset(tmp_path / "b", num_clips=20, seed=3, progress=False, workers=2)
     fa, fb = _files(a), _files(b)
-    assert len(fa) == 4 * 20 + 3 + 2 + 1
+    assert len(fa) == 4 * (20 + 2) + 3 + 2 + 1  # 20 clips and 2 long sequences
     assert fa.keys() == fb.keys()
     assert [k for k in fa if fa[k] != fb[k]] == []
     c = P.build_dataset(tmp_path / "c", num_clips=20, seed=4, progress=False, workers=1)
     assert _files(c)["new_joint_vecs/000000.npy"] != fa["new_joint_vecs/000000.npy"]
+    # long sequences are added: without them the short clips, their split and Mean/Std are the same files
+    d = _files(P.build_dataset(tmp_path / "d", num_clips=20, seed=3, progress=False, workers=1, long_sequences=0))
+    splits = ("train.txt", "val.txt", "test.txt")
+    assert len(d) == 4 * 20 + 6
+    assert [k for k in d if k not in splits + ("dataset.json",) and d[k] != fa[k]] == []
+    for name in splits:
+        assert set(d[name].split()) == set(fa[name].split()) - {b"000020", b"000021"}
 
 
 def test_every_family_present_and_labelled(built):
     labels = {p.stem: p.read_text().strip() for p in (built / "labels").glob("*.txt")}
-    assert len(labels) == 27
+    assert sorted(labels) == SHORT + LONG
+    info = json.loads((built / "dataset.json").read_text())
+    for i in LONG:  # seq:<families in order>, those of its segments
+        assert labels.pop(i) == "seq:" + "+".join(s["family"] for s in info["segments"][i])
     singles = {v for v in labels.values() if not v.startswith("seq:")}
     assert singles == set(FAMILIES)
     seqs = [v for v in labels.values() if v.startswith("seq:")]
@@ -65,28 +86,33 @@ def test_every_family_present_and_labelled(built):
     for s in seqs:
         first, second = s[4:].split("+")
         assert first in FAMILIES and second in FAMILIES and first != second
-    info = json.loads((built / "dataset.json").read_text())
     assert info["label_counts"] == {k: list(labels.values()).count(k) for k in set(labels.values())}
     assert info["families"] == FAMILIES and info["seed"] == 7 and info["num_clips"] == 27
+    assert info["num_long_sequences"] == 2 and sorted(info["segments"]) == LONG
     assert info["fps"] == 20.0 and info["skeleton"]["name"] == "humanml3d" and info["feature_dim"] == 263
 
 
 def test_layout_shapes_splits_and_stats(built):
     ids = sorted(p.stem for p in (built / "new_joint_vecs").glob("*.npy"))
-    assert ids == [f"{i:06d}" for i in range(27)]
+    assert ids == SHORT + LONG
     for i in ids:
         f = np.load(built / "new_joint_vecs" / f"{i}.npy")
         j = np.load(built / "new_joints" / f"{i}.npy")
         assert f.dtype == np.float32 and j.dtype == np.float32
         assert f.shape == (len(j) - 1, 263) and j.shape[1:] == (22, 3)
-        assert 41 <= len(j) <= 200  # 2..10 s at 20 fps; features keep T2M's 40 <= T < 200
+        if i in LONG:
+            assert 400 <= len(j) <= 1200  # 20..60 s
+        else:
+            assert 41 <= len(j) <= 200  # 2..10 s at 20 fps; features keep T2M's 40 <= T < 200
         assert np.isfinite(f).all()
         assert abs(j[..., 1].min()) < 1e-6  # HumanML3D puts the lowest joint of the clip on the floor
     splits = {s: (built / f"{s}.txt").read_text().split() for s in ("train", "val", "test")}
     assert sorted(sum(splits.values(), [])) == ids
-    assert [len(v) for v in splits.values()] == [22, 4, 1]  # 80/15/5 of 27, rounded
+    # 80/15/5 of 27, rounded, and of the 2 long sequences (split apart from them: both in train)
+    assert [len(set(v) - set(LONG)) for v in splits.values()] == [22, 4, 1] and set(LONG) <= set(splits["train"])
     mean, std = np.load(built / "Mean.npy"), np.load(built / "Std.npy")
-    train = np.concatenate([np.load(built / "new_joint_vecs" / f"{i}.npy") for i in splits["train"]]).astype(np.float64)
+    train = np.concatenate([np.load(built / "new_joint_vecs" / f"{i}.npy") for i in splits["train"]
+                            if i not in LONG]).astype(np.float64)  # the statistics leave long sequences out
     np.testing.assert_allclose(mean, train.mean(0), rtol=1e-5, atol=1e-6)
     for name, sl in FeatureLayout(22).slices().items():  # HumanML3D: one std per feature group
         np.testing.assert_allclose(std[sl], train.std(0)[sl].mean(), rtol=1e-5, err_msg=name)
@@ -103,7 +129,7 @@ def test_joints_file_is_what_the_features_describe(built):
         j = np.load(built / "new_joints" / p.name.replace(".txt", ".npy"))
         np.testing.assert_allclose(recover_from_ric(f, 22), j[:-1], atol=1e-4)
         checked += 1
-    assert checked >= 25 and turning >= 2
+    assert checked == 29 and turning >= 2
 
 
 def test_bone_lengths_are_the_skeletons(clips, built):
@@ -191,21 +217,36 @@ def test_ranges_of_motion(clips):
             assert joint_angle(j, sh, el, wr).max() < 150, name
 
 
+def _sided(family, text):
+    """Sided actions name their side."""
+    side = re.fullmatch(r"(?:wave_|kick_|sidestep_|turn_)(left|right)(?:_hand)?", family)
+    return side is None or side.group(1) in text
+
+
 def test_captions(built):
+    info = json.loads((built / "dataset.json").read_text())
+    tags = {"DET", "NOUN", "VERB", "ADV", "ADJ", "ADP", "PRON", "NUM", "CCONJ", "AUX", "INTJ"}
     for p in sorted((built / "texts").glob("*.txt")):
         caps = read_captions(p)
         label = (built / "labels" / p.name).read_text().strip()
-        assert 3 <= len(caps) <= 4 and len({c.text for c in caps}) == len(caps)
-        tags = {"DET", "NOUN", "VERB", "ADV", "ADJ", "ADP", "PRON", "NUM", "CCONJ", "AUX", "INTJ"}
         for c in caps:
             assert len(c.tokens) == len(re.findall(r"[a-z]+", c.text))  # one word/POS per word
             assert " ".join(c.tokens) == captions.pos_tokens(c.text)
             assert {t.split("/")[1] for t in c.tokens} <= tags
-            assert c.start == c.end == 0.0
             assert c.text.endswith(".") and c.text == c.text.lower()
-        for side in ("left", "right"):  # sided actions name their side in every caption
-            if re.fullmatch(rf"(wave_{side}_hand|kick_{side}|sidestep_{side}|turn_{side})", label):
-                assert all(side in c.text for c in caps), (label, caps)
+        whole = [c for c in caps if c.start == c.end == 0.0]
+        assert len({c.text for c in whole}) == len(whole)
+        if p.stem in SHORT:
+            assert 3 <= len(caps) <= 4 and whole == caps
+            assert all(_sided(label, c.text) for c in caps), (label, caps)
+            continue
+        # a long sequence: 1-2 captions of the whole, then one per segment, timed as dataset.json's frames
+        segments = info["segments"][p.stem]
+        assert 1 <= len(whole) <= 2 and caps[len(whole):] == caps[-len(segments):]
+        for c, seg in zip(caps[len(whole):], segments):
+            assert (int(c.start * FPS), int(c.end * FPS)) == (seg["start"], seg["end"])  # T2M's reading
+            assert _sided(seg["family"], c.text), (seg, c.text)
+        assert all(re.search(r"then", c.text) and c.text.count(",") >= len(segments) - 3 for c in whole)
 
 
 def test_captions_follow_parameters():
@@ -270,7 +311,7 @@ def test_sequence_blends_and_keeps_heading():
     # the second action starts facing where the first ended
     assert pose.angles[first.pose.T, 0, 1] == pytest.approx(first.pose.angles[-1, 0, 1], abs=1e-9)
     np.testing.assert_array_equal(pose.flight[first.pose.T:], second.pose.flight[C.BLEND_FRAMES:])
-    joints, caps = C.generate_clip(("walk_forward", "jump_in_place"), np.random.default_rng(5))
+    joints, caps, _ = C.generate_clip(("walk_forward", "jump_in_place"), np.random.default_rng(5))
     assert len(joints) <= 200 and len(caps) >= 3
     assert all(re.search(r"walk|step", c) and re.search(r"jump|hop", c) for c in caps)
 
@@ -299,3 +340,142 @@ def test_a_failed_build_leaves_nothing(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="boom"):
         P.build_dataset(tmp_path / "d", num_clips=8, seed=0, progress=False, workers=1)
     assert list(tmp_path.iterdir()) == []
+
+
+# --- every family does what its captions say --------------------------------------------------------------
+
+STAND_Y = pose_to_joints(Pose(2))[0, 0, 1]  # pelvis height of the neutral standing pose
+SIDE = {"left": dict(shoulder=16, wrist=20, ankle=7), "right": dict(shoulder=17, wrist=21, ankle=8)}
+IN_PLACE = {"wave_right_hand", "wave_left_hand", "clap", "punch", "kick_right", "kick_left", "squat", "bow",
+            "raise_both_arms", "stand_idle", "sit_down", "jump_in_place", "turn_left", "turn_right"}
+TURNING = {"walk_circle", "turn_left", "turn_right"}
+
+
+def through_features(joints):
+    """The joints a model learns from: the writer's features, recovered (frame 0 faces +z)."""
+    return recover_from_ric(extract_features(joints, HUMANML3D), 22)
+
+
+def motion_facts(j):
+    """What the body does over frames j (T, 22, 3): root displacement start -> end along the initial facing
+    (`fwd`) and to its left (`left`), m; net heading change from the hips and shoulders, degrees (> 0 to the
+    left); root path length; pelvis rise above / drop below standing height (and at the end); and what the
+    hands, feet and head do."""
+    across = (j[:, 2] - j[:, 1]) + (j[:, 17] - j[:, 16])  # right minus left hip, and shoulder
+    heading = np.unwrap(np.arctan2(across[:, 2], -across[:, 0]))  # forward = up x across
+    h0, h1 = heading[:3].mean(), heading[-3:].mean()
+    d = j[-1, 0, [0, 2]] - j[0, 0, [0, 2]]
+    fwd = np.stack([np.sin(heading), np.cos(heading)], -1)
+    pelvis = j[:, 0, 1] - STAND_Y
+    m = dict(fwd=d @ [np.sin(h0), np.cos(h0)], left=d @ [np.cos(h0), -np.sin(h0)], dist=np.linalg.norm(d),
+             turn=np.degrees(h1 - h0), path=np.linalg.norm(np.diff(j[:, 0, [0, 2]], axis=0), axis=-1).sum(),
+             rise=pelvis.max(), drop=-pelvis.min(), end_drop=-pelvis[-3:].mean(),
+             airborne=j[:, [10, 11], 1].min(axis=1).max(),  # both toes off the floor
+             clap=np.linalg.norm(j[:, 20] - j[:, 21], axis=-1).min(), head_dip=j[:3, 15, 1].mean() - j[:, 15, 1].min())
+    for side, k in SIDE.items():
+        m[f"hand_up_{side}"] = (j[:, k["wrist"], 1] - j[:, k["shoulder"], 1]).max()
+        m[f"foot_up_{side}"] = j[:, k["ankle"], 1].max()
+        reach = j[:, k["wrist"], [0, 2]] - j[:, k["shoulder"], [0, 2]]
+        m[f"reach_{side}"] = (reach * fwd).sum(-1).max()
+    return m
+
+
+def promises(family, p, m):
+    """(promise, kept) for what `family`'s captions say, given the parameters p it was drawn with. The
+    bounds come from each family's definition (locomotion.py, in_place.py), with room for the body's
+    sway; none is fitted to what the generator happens to output."""
+    out = []
+    if family in IN_PLACE:  # "in place", "on the spot": the feet end about where they started
+        out.append(("stays in place: moves < 0.5 m", m["dist"] < 0.5))
+    if family not in TURNING:
+        out.append(("keeps its heading within 15 deg", abs(m["turn"]) < 15))
+    sign = {"left": 1.0, "right": -1.0}.get(p.get("side"), 0.0)
+    steps, reps = p.get("steps", 1), p.get("reps", 1)
+    if family in ("walk_forward", "run"):  # a walking step 0.3-0.8 m, a running one 0.6-1.8 m
+        lo, hi = (0.2, 0.9) if family == "walk_forward" else (0.4, 2.0)
+        out.append((f"moves forward {lo}-{hi} m a step", lo * steps < m["fwd"] < hi * steps))
+        out.append(("in a straight line", abs(m["left"]) < 0.1 + 0.1 * m["fwd"]))
+    if family == "walk_backward":  # shorter steps than walking forward
+        out.append(("moves backward 0.1-0.7 m a step", 0.1 * steps < -m["fwd"] < 0.7 * steps))
+        out.append(("in a straight line", abs(m["left"]) < 0.1 + 0.1 * abs(m["fwd"])))
+    if family.startswith("sidestep_"):  # each pair of steps moves the body its stance width, 0.25-0.45 m
+        out.append((f"moves to the {p['side']} 0.15-0.6 m a pair", 0.15 * steps < sign * m["left"] < 0.6 * steps))
+        out.append(("sideways, not forward or back", abs(m["fwd"]) < 0.25))
+    if family in ("turn_left", "turn_right"):
+        out.append((f"turns {p['side']} {p['angle']} deg (+-20)", abs(m["turn"] - sign * p["angle"]) < 20))
+    if family == "walk_circle":  # a full circle: the heading turns 360 degrees and the walk ends near its start
+        out.append((f"turns a full circle to the {p['side']}", abs(m["turn"] - sign * 360) < 30))
+        out.append(("ends nearer its start than its path is long", m["dist"] < 0.5 * m["path"]))
+    if family.startswith("jump_"):  # flights of 0.12-0.45 m (in place), 0.2-0.35 m (forward)
+        out.append(("leaves the floor", m["airborne"] > 0.05 and m["rise"] > 0.08))
+    if family == "jump_in_place" and p["high"]:
+        out.append(("jumps high: the pelvis rises > 0.2 m", m["rise"] > 0.2))
+    if family == "jump_forward":  # each jump lands 0.35-0.6 m (short) or 0.8-1.2 m (far) ahead
+        lo, hi = (0.8, 1.2) if p["far"] else (0.35, 0.6)
+        out.append((f"jumps {lo}-{hi} m forward each time", (lo - 0.15) * reps < m["fwd"] < (hi + 0.15) * reps))
+    if family == "squat":  # half squats bend the thighs 50 degrees, deep ones 90
+        out.append(("lowers the pelvis", m["drop"] > (0.25 if p["deep"] else 0.1)))
+        out.append(("and stands back up", abs(m["end_drop"]) < 0.05))
+    if family == "sit_down":  # onto a seat about knee height, and stays there
+        out.append(("sits: the pelvis ends > 0.25 m lower", m["end_drop"] > 0.25))
+    if family == "stand_idle":
+        out.append(("stands: the pelvis stays at standing height", m["drop"] < 0.05 and m["rise"] < 0.05))
+    if family == "bow":  # the trunk folds 20-35 (slightly) or 55-75 degrees (deeply)
+        out.append(("the head dips", m["head_dip"] > (0.2 if p["deep"] else 0.05)))
+    if family.startswith("wave_"):
+        other = "left" if p["side"] == "right" else "right"
+        out.append((f"the {p['side']} hand rises above the shoulder", m[f"hand_up_{p['side']}"] > 0.1))
+        out.append((f"the {other} hand stays down", m[f"hand_up_{other}"] < 0.0))
+    if family.startswith("kick_"):
+        other = "left" if p["side"] == "right" else "right"
+        out.append((f"the {p['side']} foot kicks up", m[f"foot_up_{p['side']}"] > 0.25))
+        out.append((f"the {other} foot stays down", m[f"foot_up_{other}"] < 0.15))
+    if family == "punch":  # a punch straightens the arm forward (an arm is ~0.55 m long)
+        for side in ("left", "right") if p["side"] == "both" else (p["side"],):
+            out.append((f"the {side} fist reaches forward", m[f"reach_{side}"] > 0.4))
+    if family == "clap":
+        out.append(("the hands meet", m["clap"] < 0.12))
+    if family == "raise_both_arms":
+        low = min(m["hand_up_left"], m["hand_up_right"])
+        out.append(("both hands reach shoulder height" + (" and above" if p["high"] else ""),
+                    low > (0.3 if p["high"] else -0.1)))
+    return out
+
+
+def _broken(family, params, facts, where):
+    return [f"{where} {family} {params}: not {what}" for what, ok in promises(family, params, facts) if not ok]
+
+
+def test_every_family_does_what_its_captions_say():
+    table, broken = {}, []
+    for fi, family in enumerate(FAMILIES):
+        rows = []
+        for s in range(8):
+            clip = C.generate_clip((family,), np.random.default_rng([21, fi, s]))
+            facts = motion_facts(through_features(clip.joints))
+            broken += _broken(family, clip.segments[0].params, facts, f"seed [21, {fi}, {s}]")
+            rows.append([facts[k] for k in ("dist", "fwd", "left", "turn", "path", "rise", "drop")])
+        table[family] = np.median(rows, axis=0)
+    print("\nfamily            dist    fwd   left   turn   path   rise   drop   (medians of 8 clips)")
+    for family, med in table.items():
+        print(f"{family:16s}" + "".join(f"{v:7.2f}" for v in med))
+    assert not broken, "\n".join(broken)
+
+
+def test_long_sequences_tile_and_each_segment_does_what_its_caption_says():
+    broken = []
+    for i in range(4):
+        clip = S.generate_long(np.random.default_rng([31, i]))
+        segs, T = clip.segments, len(clip.joints)
+        assert 20 * FPS <= T <= 60 * FPS and 3 <= len(segs) <= 8
+        assert segs[0].start == 0 and segs[-1].end == T and all(a.end == b.start for a, b in zip(segs, segs[1:]))
+        # every span loads as an item of its own: T2M's 40 <= feature frames < 200
+        assert all(S.MIN_SPAN <= s.end - s.start <= 200 for s in segs)
+        assert all(a.family != b.family for a, b in zip(segs, segs[1:]))
+        assert "sit_down" not in [s.family for s in segs[:-1]]  # it ends seated
+        assert 1 <= len(clip.captions) <= 2 and all(s.caption.endswith(".") for s in segs)
+        j = through_features(clip.joints)
+        for s in segs:
+            facts = motion_facts(j[s.start:s.end])
+            broken += _broken(s.family, s.params, facts, f"long [31, {i}] frames [{s.start}, {s.end})")
+    assert not broken, "\n".join(broken)

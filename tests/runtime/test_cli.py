@@ -107,11 +107,12 @@ def test_default_bundle_comes_from_the_environment(capsys, tmp_path, monkeypatch
 # stream
 
 def test_stream_prints_one_json_line_per_frame(capsys, bundle_path, gen):
-    code, stdout, err = run_cli(capsys, "stream", TEXT, "--bundle", bundle_path, "--seed", 2)
+    # a fixed length: on an endless bundle a stream without --seconds never ends
+    code, stdout, err = run_cli(capsys, "stream", TEXT, "--bundle", bundle_path, "--seed", 2, "--seconds", 1.6)
     assert code == 0, err
     lines = stdout.splitlines()
     frames = [json.loads(line) for line in lines]
-    want = gen.generate(TEXT, seed=2)
+    want = gen.generate(TEXT, seed=2, seconds=1.6)
     assert len(frames) == want.num_frames
     assert [f["frame"] for f in frames] == list(range(want.num_frames))
     assert [f["time"] for f in frames] == pytest.approx([i / gen.dims.fps for i in range(want.num_frames)])

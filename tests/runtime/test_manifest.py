@@ -88,7 +88,8 @@ def test_every_malformed_field_is_one_clear_error(toy_bundle, manifest_dict, tmp
     informative = ("producer", "model.d_model deleted", "model.end_id deleted", "model.bos_id deleted",
                    "model.pad_id deleted", "model.receptive_field = 0", "skeleton.offsets.0.0 = 0",
                    "normalization.mean.0 = ", "normalization.std.0 = ", "text_encoder.name = ",
-                   "text_encoder.pooling deleted", "sampling_defaults", "variants.int8 deleted")
+                   "text_encoder.pooling deleted", "sampling_defaults", "variants.int8 deleted",
+                   "streaming deleted", "streaming = None")
     symbolic_dim = re.compile(r"graphs\.\w+\.(inputs|outputs)\.0\.shape\.0 = '\w+'$")
     unexpected = [n for n in loaded if not (n.startswith(informative) or symbolic_dim.match(n)
                                             or re.match(r"variants\.\w+\.\w+\.quantization", n))]

@@ -18,8 +18,8 @@ from onnx import TensorProto, helper, numpy_helper
 from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
 
 from mogo_runtime.features import FeatureLayout
-from mogo_runtime.manifest import (GraphFile, GraphSpec, Manifest, ModelDims, Normalization, TensorSpec,
-                                   TextEncoderSpec)
+from mogo_runtime.manifest import (GraphFile, GraphSpec, Manifest, ModelDims, Normalization, StreamingSpec,
+                                   TensorSpec, TextEncoderSpec)
 from mogo_runtime.sampling import SamplingConfig
 from mogo_runtime.skeleton import HUMANML3D
 from mogo_runtime.text import TokenizerSettings, configure_tokenizer
@@ -29,6 +29,7 @@ WORDS = ["a", "person", "walks", "forward", "waves", "hand", "jumps", "twice", "
 L, K, N_LAYERS, N_HEADS, HEAD_DIM = 2, 16, 2, 1, 4
 TEXT_DIM, LATENT, DOWNSAMPLE, RECEPTIVE, FPS, MAX_TOKENS, MAX_LEN = 8, 6, 4, 2, 20.0, 24, 12
 D = FeatureLayout.for_skeleton(HUMANML3D).dim
+WINDOW, REFRESH = 5, 3   # endless streams: the context is rebuilt every few tokens, so tests see many rebuilds
 OPSET, IR = 18, 10   # onnx 1.23 stamps IR 14 by default; onnxruntime 1.31 loads at most IR 13
 
 
@@ -98,7 +99,8 @@ def step(rng, spec) -> onnx.ModelProto:
               helper.make_node("Reshape", ["zt", "level_logits"], ["z_text"])]       # (B, L, K + 1)
     terms = ["z_text"]
     for i in range(N_LAYERS):
-        table = rng.standard_normal((K + 3, HEAD_DIM)).astype(np.float32)
+        # small token keys, so that the text keeps steering a long stream (the cache holds up to 9 of them)
+        table = (0.3 * rng.standard_normal((K + 3, HEAD_DIM))).astype(np.float32)
         w = (0.7 * rng.standard_normal((HEAD_DIM, K + 1))).astype(np.float32)
         if i == 0:   # channel 0 counts the steps taken: END (column K) grows likelier with every step
             table[:, 0] = 1.0
@@ -166,7 +168,7 @@ def word_tokenizer(words: list[str]) -> Tokenizer:
     return tok
 
 
-def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = True) -> Path:
+def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = True, streaming: bool = True) -> Path:
     """Write a complete bundle to `out` (graphs, tokenizer.json, manifest.json with sizes and hashes)."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
@@ -198,7 +200,7 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
         sampling_defaults=SamplingConfig(temperature=1.0, top_p=0.95),
         graphs={g: GraphSpec(*(tuple(TensorSpec(d["name"], d["dtype"], tuple(d["shape"])) for d in io[k])
                                for k in ("inputs", "outputs"))) for g, io in specs.items()},
-        variants=variants, files=files)
+        variants=variants, files=files, streaming=StreamingSpec(window=WINDOW, refresh=REFRESH) if streaming else None)
     manifest = manifest.to_dict()
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
     return out

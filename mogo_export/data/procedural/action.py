@@ -4,7 +4,8 @@ A family is a function `(rng, budget) -> Action`: it samples its parameters (spe
 repetitions, duration) from the generator it is given, and fits its repetitions into the budget so a clip
 is never cut in the middle of what its captions describe. The budget is an explicit, immutable value
 because it differs between calls: a single action may use up to MAX_SECONDS, the first action of a
-two-action sequence must leave room for the second (clips.py).
+two-action sequence must leave room for the second (clips.py), an action of a long sequence gets what is
+left of its 60 s (sequences.py).
 """
 from __future__ import annotations
 

@@ -49,6 +49,29 @@ def sample_captions(phrase_sets: list[list[str]], rng: np.random.Generator) -> l
     return list(dict.fromkeys(out))  # same subject and phrasing twice: keep one
 
 
+def single_caption(phrases: list[str], rng: np.random.Generator) -> str:
+    """One caption of one action: a sampled subject and phrasing (a long sequence's per-action line)."""
+    subject, pos = SUBJECTS[int(rng.integers(len(SUBJECTS)))]
+    return f"{subject} {phrases[int(rng.integers(len(phrases)))].replace('{pos}', pos)}."
+
+
+LONG_TEMPLATES = ("{s} {a}, then {b}, and finally {c}", "{s} first {a}, then {b}, and finally {c}",
+                  "{s} {a}, then {b} and then {c}")
+
+
+def sequence_captions(phrase_sets: list[list[str]], rng: np.random.Generator) -> list[str]:
+    """1 or 2 differently worded captions naming every action of a long sequence in order."""
+    out = []
+    for _ in range(int(rng.integers(1, 3))):
+        subject, pos = SUBJECTS[int(rng.integers(len(SUBJECTS)))]
+        # the shorter of two phrasings: eight actions in one sentence are long enough
+        parts = [min((p[int(k)] for k in rng.choice(len(p), 2, replace=False)), key=len).replace("{pos}", pos)
+                 for p in phrase_sets]
+        tpl = LONG_TEMPLATES[int(rng.integers(len(LONG_TEMPLATES)))]
+        out.append(tpl.format(s=subject, a=parts[0], b=", then ".join(parts[1:-1]), c=parts[-1]) + ".")
+    return list(dict.fromkeys(out))
+
+
 # A small POS lexicon covering every word the captions use, tagged like HumanML3D's texts (spaCy's
 # universal tags, only NOUN and VERB lemmatised, punctuation dropped). The build fails loudly on a word
 # missing here rather than guessing.
@@ -65,7 +88,7 @@ _WORDS = {
            "idle little quarter",
     "ADV": "ahead afterwards backward backwards back calmly carefully clockwise counterclockwise deeply down "
            "far fast forward quickly slightly slowly still then together up once twice around much out "
-           "sideways straight first",
+           "sideways straight first finally",
 }
 _NOUNS = {"person": "person", "man": "man", "woman": "woman", "human": "human", "arm": "arm", "arms": "arm",
           "hand": "hand", "hands": "hand", "fist": "fist", "fists": "fist", "foot": "foot", "leg": "leg",
@@ -110,6 +133,9 @@ def pos_tokens(caption: str) -> str:
     return " ".join(out)
 
 
-def caption_line(caption: str) -> str:
-    """One line of a HumanML3D texts/ file: caption#tokens#start#end (0.0#0.0: the whole clip)."""
-    return f"{caption}#{pos_tokens(caption)}#0.0#0.0"
+def caption_line(caption: str, start: float = 0.0, end: float = 0.0) -> str:
+    """One line of a HumanML3D texts/ file: caption#tokens#start#end, in seconds (0.0#0.0: the whole clip).
+
+    Times are rounded to 0.01 s: a frame boundary at 20 fps is a multiple of 0.05 s, which T2M's
+    `int(seconds * 20)` reads back as the same frame."""
+    return f"{caption}#{pos_tokens(caption)}#{round(float(start), 2)!r}#{round(float(end), 2)!r}"

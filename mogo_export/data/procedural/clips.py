@@ -1,11 +1,13 @@
 """One clip of the dataset: which families it shows (`family_plan`, `label_for`), and `generate_clip`, which
-turns them into world joints and captions: a single action, or a two-action sequence cross-faded by
-`blend`.
+turns them into a `Clip` (world joints, captions, and the frames each action occupies): a single action,
+or a two-action sequence cross-faded by `blend`. Long sequences of 3-8 actions are in sequences.py.
 
 A sequence is where time budgets come from: the first action is given less than MAX_SECONDS so the
 second still fits, and the second gets what is left.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -22,6 +24,23 @@ SEQUENCE_EVERY = 5  # every 5th clip (index % 5 == 4) is a two-action sequence
 NOT_FIRST = ("sit_down",)  # ends seated: cannot hand over to a standing action in 0.5 s
 
 
+class Segment(NamedTuple):
+    """One action of a clip: its family, the frames [start, end) of the clip it is shown in (cut at the
+    middle of the cross-fades into and out of it), the parameters it was drawn with, and, in long
+    sequences, its own timed caption."""
+    family: str
+    start: int
+    end: int
+    params: dict
+    caption: str = ""
+
+
+class Clip(NamedTuple):
+    joints: np.ndarray          # (T, 22, 3) world positions, metres, y up
+    captions: list[str]         # describe the whole clip
+    segments: list[Segment]     # in order, covering frames 0..T without gaps
+
+
 def blend(a: Pose, b: Pose, frames: int = BLEND_FRAMES) -> Pose:
     """`a` then `b`, cross-fading joint angles over `frames` frames; b keeps the heading a ends with.
 
@@ -36,6 +55,7 @@ def blend(a: Pose, b: Pose, frames: int = BLEND_FRAMES) -> Pose:
     mid = (1 - w)[:, None, None] * a.angles[a.T - n:] + w[:, None, None] * b_angles[:n]
     out.angles = np.concatenate([a.angles[:a.T - n], mid, b_angles[n:]])
     out.flight = np.concatenate([a.flight[:a.T - n], a.flight[a.T - n:] | b.flight[:n], b.flight[n:]])
+    out.leap = np.concatenate([a.leap[:a.T - n], a.leap[a.T - n:] | b.leap[:n], b.leap[n:]])
     out.air_speed = np.concatenate([a.air_speed[:a.T - n], np.maximum(a.air_speed[a.T - n:], b.air_speed[:n]),
                                     b.air_speed[n:]])
     out.support = np.concatenate([a.support[:a.T - n], a.support[a.T - n:] | b.support[:n], b.support[n:]])
@@ -62,17 +82,18 @@ def family_plan(num_clips: int, seed: int) -> list[tuple[str, ...]]:
 
 
 def label_for(families: tuple[str, ...]) -> str:
-    """`walk_forward` for a single action, `seq:walk_forward+jump_in_place` for a sequence (in order)."""
+    """`walk_forward` for a single action, `seq:walk_forward+jump_in_place+...` for a sequence (in order)."""
     return families[0] if len(families) == 1 else "seq:" + "+".join(families)
 
 
-def generate_clip(families: tuple[str, ...], rng: np.random.Generator) -> tuple[np.ndarray, list[str]]:
-    """World joints (T, 22, 3) and 3-4 captions for one clip of one action or a two-action sequence."""
+def generate_clip(families: tuple[str, ...], rng: np.random.Generator) -> Clip:
+    """World joints (T, 22, 3), 3-4 captions and the segments of one action or a two-action sequence."""
     heading = rng.uniform(-180.0, 180.0)
     max_frames = int(round(MAX_SECONDS * FPS))
     if len(families) == 1:
         action = FAMILIES[families[0]](rng, FULL_BUDGET)
         pose, captions = action.pose, sample_captions([action.phrases], rng)
+        actions, cuts = [action], []
     else:
         for _ in range(20):  # redraw until both fit in MAX_SECONDS (rarely needed)
             # the first action leaves room for a shortest second one (they overlap by the blend)
@@ -83,6 +104,10 @@ def generate_clip(families: tuple[str, ...], rng: np.random.Generator) -> tuple[
             if pose.T <= max_frames:
                 break
         captions = sample_captions([first.phrases, second.phrases], rng)
+        n = min(BLEND_FRAMES, first.pose.T - 1, second.pose.T - 1)
+        actions, cuts = [first, second], [first.pose.T - n + n // 2]
     pose.angles[:, 0, 1] += heading
     joints = pose_to_joints(pose)[:max_frames]
-    return joints, captions
+    bounds = [0] + [min(c, len(joints)) for c in cuts] + [len(joints)]
+    segments = [Segment(a.family, s, e, a.params) for a, s, e in zip(actions, bounds[:-1], bounds[1:])]
+    return Clip(joints, captions, segments)

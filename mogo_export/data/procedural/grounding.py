@@ -45,8 +45,16 @@ def _root_heights(points: np.ndarray, flight: np.ndarray) -> np.ndarray:
     return y
 
 
-def solve_ground(points: np.ndarray, support: np.ndarray, flight: np.ndarray, air_speed: np.ndarray,
-                 yaw_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _leap_velocity(xz: list, a: int, b: int, travel: np.ndarray) -> tuple[float, float]:
+    """Root velocity (m/frame) through a leap airborne on frames [a, b): the one that sets the toes down
+    at frame b where they left the floor at frame a - 1, moved by `travel` (x, z)."""
+    n = b - a + 1
+    return tuple(float((xz[a - 1][1][i] + xz[a - 1][3][i] - xz[b][1][i] - xz[b][3][i]) / 2 + travel[i]) / n
+                 for i in (0, 1))
+
+
+def solve_ground(points: np.ndarray, support: np.ndarray, flight: np.ndarray, leap: np.ndarray,
+                 air_speed: np.ndarray, yaw_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Root translation (T, 3), per-foot floor corrections (T, 2, 3) and whether each foot is pinned
     (T, 2), for contact points (T, 4, 3) given relative to the root (heel, toe of left then right foot).
 
@@ -56,8 +64,10 @@ def solve_ground(points: np.ndarray, support: np.ndarray, flight: np.ndarray, ai
     and lifting points, and those of feet the action no longer marks as support, weigh less, so
     hand-overs between feet do not jerk the body). Whatever a foot still misses its pins by is its
     correction, which `lock_feet` applies with leg IK and blends away once the foot lifts. With nothing
-    pinned the root keeps its velocity; in the air (`flight`) it follows a ballistic arc and moves at
-    `air_speed` m/s along the heading where that is set.
+    pinned the root keeps its velocity; in the air (`flight`) it follows a ballistic arc. A `leap` (a jump
+    off both feet) sets the toes down where they took off, moved by the jump's `air_speed` (m/s along the
+    heading) over its airborne frames: the toes do what the action says, whatever the legs' swing
+    would carry the body to (it carried in-place jumps 1.6 m forward a jump).
     """
     T = len(points)
     root = np.zeros((T, 3))
@@ -67,12 +77,16 @@ def solve_ground(points: np.ndarray, support: np.ndarray, flight: np.ndarray, ai
     sup = support.tolist()
     air = flight.tolist()
     yaw = np.radians(yaw_deg)
-    air_vel = (np.stack([np.sin(yaw), np.cos(yaw)], -1) * (air_speed / FPS)[:, None]).tolist()
+    air_vel = np.stack([np.sin(yaw), np.cos(yaw)], -1) * (air_speed / FPS)[:, None]  # m/frame
+    leaps = {a: b for a, b in _runs(leap & flight) if 0 < a and b < T}  # take-off -> landing frame
     pin = [None] * 4                                        # [x, z, frames pinned] per point
     corr = np.zeros((T, 2, 3))
     pinned = np.zeros((T, 2), dtype=bool)
     rx = rz = vx = vz = 0.0
     for t in range(T):
+        if t in leaps:
+            b = leaps[t]
+            vx, vz = _leap_velocity(xz, t, b, air_vel[t:b].sum(axis=0))
         h = height[t]
         for p in range(4):
             if pin[p] is not None and (h[p] > TOUCH or air[t]):
@@ -87,8 +101,7 @@ def solve_ground(points: np.ndarray, support: np.ndarray, flight: np.ndarray, ai
                 sw += w
                 sx += w * (pin[p][0] - xz[t][p][0])
                 sz += w * (pin[p][1] - xz[t][p][1])
-        if air[t] and air_vel[t] != [0.0, 0.0]:
-            vx, vz = air_vel[t]
+        if air[t]:  # nothing is pinned in the air (see above): keep the velocity of the flight
             nx, nz = rx + vx, rz + vz
         elif sw > 0:
             nx, nz = sx / sw, sz / sw
@@ -147,6 +160,6 @@ def lock_feet(joints: np.ndarray, corr: np.ndarray, pinned: np.ndarray, skeleton
 def pose_to_joints(pose: Pose) -> np.ndarray:
     """(T, 22, 3) world joint positions (metres, y up) for a Pose."""
     rel, glob = forward_kinematics(pose.angles)
-    root, corr, pinned = solve_ground(contact_points(rel, glob), pose.support, pose.flight, pose.air_speed,
-                                      pose.angles[:, 0, 1])
+    root, corr, pinned = solve_ground(contact_points(rel, glob), pose.support, pose.flight, pose.leap,
+                                      pose.air_speed, pose.angles[:, 0, 1])
     return lock_feet(rel + root[:, None, :], corr, pinned)

@@ -144,7 +144,8 @@ def _jumps(rng, budget: TimeBudget, reps: int, height: float, distance: float, t
     for a, b in offs:
         air = (tt > a) & (tt < b)
         pose.flight |= air
-        pose.air_speed[air] = distance / flight_time
+        pose.leap |= air
+        pose.air_speed[air] = distance * FPS / max(air.sum(), 1)  # `distance` over the airborne frames
     return pose, reps
 
 

@@ -42,7 +42,11 @@ class Pose:
         self.angles = np.zeros((num_frames, NUM_JOINTS, 3))
         self.flight = np.zeros(num_frames, dtype=bool)  # airborne frames: root follows a ballistic arc
         self.support = np.ones((num_frames, 2), dtype=bool)  # (left, right) feet allowed to carry the body
-        self.air_speed = np.zeros(num_frames)           # m/s forward (body frame) while airborne
+        # airborne frames of a jump off both feet: the toes land where they took off, moved by air_speed
+        # along the heading over those frames (other flights, a running stride's, keep the velocity
+        # they left the floor with)
+        self.leap = np.zeros(num_frames, dtype=bool)
+        self.air_speed = np.zeros(num_frames)           # m/s forward (body frame) while leaping
 
     def _add(self, j: int, axis: int, value) -> None:
         self.angles[:, j, axis] += np.broadcast_to(np.asarray(value, dtype=np.float64), (self.T,))

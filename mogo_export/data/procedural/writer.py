@@ -1,9 +1,11 @@
-"""Writing the procedural dataset in the HumanML3D folder layout: the clip files, the train/val/test split,
-the Mean/Std feature statistics, dataset.json, and the command line (`python -m mogo_export.data.procedural`).
+"""Writing the procedural dataset in the HumanML3D folder layout: the clip files (short clips, then long
+sequences), the train/val/test split, the Mean/Std feature statistics, dataset.json, and the command line
+(`python -m mogo_export.data.procedural`).
 
 The whole dataset is the unit of atomicity: it is written into a hidden temporary sibling folder and
 renamed into place at the end (removed on any failure), so its single files need no atomic writes of their
-own. Everything is a function of (num_clips, seed), whatever the number of worker processes.
+own. Everything is a function of (num_clips, long_sequences, seed), whatever the number of worker processes;
+a short clip does not depend on long_sequences, nor a long sequence on num_clips (only its id does).
 """
 from __future__ import annotations
 
@@ -24,12 +26,18 @@ from mogo_runtime.skeleton import HUMANML3D
 
 from ..humanml3d import canonicalize, extract_features
 from .captions import caption_line
-from .clips import family_plan, generate_clip, label_for
+from .clips import Clip, family_plan, generate_clip, label_for
 from .families import FAMILIES
 from .pose import FPS
+from .sequences import generate_long
 
-GENERATOR_VERSION = 1
+# 2: jumps land where they are meant to (in place, or their distance ahead); long sequences
+GENERATOR_VERSION = 2
 SPLITS = (("train", 0.80), ("val", 0.15), ("test", 0.05))
+LONG_EVERY = 10  # by default one long sequence per 10 short clips
+# generator streams, np.random.default_rng([seed, ..., stream]): a new kind of draw gets a new stream, so
+# adding it changes nothing drawn before (short clips are [seed, index]; family_plan uses 1 and 2)
+SPLIT_STREAM, LONG_STREAM, LONG_SPLIT_STREAM = 3, 4, 5
 
 
 def mean_std(features, num_joints: int) -> tuple[np.ndarray, np.ndarray]:
@@ -56,24 +64,34 @@ def mean_std(features, num_joints: int) -> tuple[np.ndarray, np.ndarray]:
     return mean.astype(np.float32), std.astype(np.float32)
 
 
-def _write_clip(index: int, plan: list[tuple[str, ...]], seed: int, root: Path) -> tuple[str, str, int]:
+def _generate(index: int, plan: list[tuple[str, ...]], seed: int) -> tuple[Clip, bool]:
+    """Clip `index`: the short clips of `plan` first, then the long sequences; -> (clip, is it long)."""
+    if index < len(plan):
+        return generate_clip(plan[index], np.random.default_rng([seed, index])), False
+    return generate_long(np.random.default_rng([seed, index - len(plan), LONG_STREAM])), True
+
+
+def _write_clip(index: int, plan: list[tuple[str, ...]], seed: int, root: Path) -> tuple[str, str, int, list | None]:
+    """Write clip `index`'s files; -> (id, label, frames, its segments if it is a long sequence)."""
     clip_id = f"{index:06d}"
-    families = plan[index]
-    joints, captions = generate_clip(families, np.random.default_rng([seed, index]))
+    (joints, captions, segments), long = _generate(index, plan, seed)
     features = extract_features(joints, HUMANML3D)
     np.save(root / "new_joint_vecs" / f"{clip_id}.npy", features)
     np.save(root / "new_joints" / f"{clip_id}.npy", canonicalize(joints, HUMANML3D).astype(np.float32))
-    (root / "texts" / f"{clip_id}.txt").write_text("".join(caption_line(c) + "\n" for c in captions),
-                                                  encoding="utf-8")
-    label = label_for(families)
+    lines = [caption_line(c) for c in captions]
+    if long:  # HumanML3D's timed lines: what happens from start to end (seconds)
+        lines += [caption_line(s.caption, s.start / FPS, s.end / FPS) for s in segments]
+    (root / "texts" / f"{clip_id}.txt").write_text("".join(line + "\n" for line in lines), encoding="utf-8")
+    label = label_for(plan[index] if not long else tuple(s.family for s in segments))
     (root / "labels" / f"{clip_id}.txt").write_text(label + "\n", encoding="utf-8")
-    return clip_id, label, len(joints)
+    spans = [{"family": s.family, "start": s.start, "end": s.end} for s in segments] if long else None
+    return clip_id, label, len(joints), spans
 
 
-def split_ids(ids: list[str], seed: int) -> dict[str, list[str]]:
+def split_ids(ids: list[str], seed: int, stream: int = SPLIT_STREAM) -> dict[str, list[str]]:
     """Deterministic 80/15/5 split of clip ids (each split sorted); from 3 clips on, no split is empty."""
     n = len(ids)
-    order = np.random.default_rng([seed, 3]).permutation(n)
+    order = np.random.default_rng([seed, stream]).permutation(n)
     n_val = int(round(SPLITS[1][1] * n))
     n_test = n - int(round(SPLITS[0][1] * n)) - n_val
     if n >= 3:
@@ -83,72 +101,102 @@ def split_ids(ids: list[str], seed: int) -> dict[str, list[str]]:
     return {name: sorted(ids[i] for i in idx) for name, idx in parts.items()}
 
 
-def _build_into(tmp: Path, num_clips: int, seed: int, progress: bool, workers: int) -> None:
+def _frame_stats(frames: list[int]) -> dict:
+    if not frames:
+        return {}
+    return {"min": int(min(frames)), "max": int(max(frames)), "mean": round(float(np.mean(frames)), 2)}
+
+
+def _build_into(tmp: Path, num_clips: int, num_long: int, seed: int, progress: bool, workers: int) -> None:
     """Write every file of the dataset into `tmp` (see build_dataset)."""
     plan = family_plan(num_clips, seed)
     job = partial(_write_clip, plan=plan, seed=seed, root=tmp)
-    bar = tqdm(total=num_clips, desc="procedural clips", unit="clip", disable=not progress)
+    total = num_clips + num_long
+    bar = tqdm(total=total, desc="procedural clips", unit="clip", disable=not progress)
     results = []
-    if workers > 1 and num_clips > 1:
+    if workers > 1 and total > 1:
         with multiprocessing.get_context("fork").Pool(workers) as pool:
-            for r in pool.imap(job, range(num_clips), chunksize=8):
+            for r in pool.imap(job, range(total), chunksize=8):
                 results.append(r)
                 bar.update()
     else:
-        for i in range(num_clips):
+        for i in range(total):
             results.append(job(i))
             bar.update()
     bar.close()
 
-    ids = [r[0] for r in results]
+    short, long = results[:num_clips], results[num_clips:]
+    ids = [r[0] for r in short]
     splits = split_ids(ids, seed)
+    # long sequences are split on their own, so adding them leaves the short clips' split as it was
+    long_splits = split_ids([r[0] for r in long], seed, LONG_SPLIT_STREAM)
     for name, members in splits.items():
-        (tmp / f"{name}.txt").write_text("".join(m + "\n" for m in members), encoding="utf-8")
+        (tmp / f"{name}.txt").write_text("".join(m + "\n" for m in members + long_splits[name]), encoding="utf-8")
+    # Statistics over the short clips only: long sequences are the same actions, with standing cross-fades
+    # between them; with them Mean/Std would move with how many are built (200 hold a third of the frames).
     train = [tmp / "new_joint_vecs" / f"{m}.npy" for m in splits["train"] or ids]
     mean, std = mean_std(train, HUMANML3D.num_joints)
     np.save(tmp / "Mean.npy", mean)
     np.save(tmp / "Std.npy", std)
 
-    labels = [r[1] for r in results]
-    frames = np.array([r[2] for r in results])
+    labels = [r[1] for r in short]
+    segments = {r[0]: r[3] for r in long}
+    family_spans = [s["family"] for spans in segments.values() for s in spans]
     info = {
         "generator": "mogo_export.data.procedural",
         "generator_version": GENERATOR_VERSION,
         "seed": seed,
         "num_clips": num_clips,
-        "splits": {k: len(v) for k, v in splits.items()},
+        "splits": {k: len(v) + len(long_splits[k]) for k, v in splits.items()},
         "families": list(FAMILIES),
         "label_counts": {k: labels.count(k) for k in sorted(set(labels))},
-        "label_format": "family name, or 'seq:<first>+<second>' for a two-action sequence (in order)",
+        "label_format": "family name, or 'seq:<first>+<second>' for a two-action sequence (in order); a long "
+                        "sequence's label is 'seq:' and its families in order; label_counts counts short clips",
         "num_sequences": sum(lab.startswith("seq:") for lab in labels),
         "fps": FPS,
-        "frames": {"min": int(frames.min()), "max": int(frames.max()), "mean": round(float(frames.mean()), 2)},
+        "frames": _frame_stats([r[2] for r in short]),
+        "num_long_sequences": num_long,
+        "long_frames": _frame_stats([r[2] for r in long]),
+        "long_family_counts": {k: family_spans.count(k) for k in sorted(set(family_spans))},
+        "segments": segments,
+        "segment_format": "long sequence id -> its actions in order, each shown on frames [start, end) of "
+                          "new_joints/<id>.npy (the features have one frame fewer); consecutive segments meet "
+                          "at the middle of the cross-fade between them; texts/<id>.txt has one line per "
+                          "segment timed start / fps to end / fps seconds",
         "feature_dim": FeatureLayout(HUMANML3D.num_joints).dim,
         "skeleton": HUMANML3D.to_dict(),
         "std_convention": "HumanML3D mean_variance: std averaged within each feature group, weights 1.0; "
-                          "computed over the train split",
+                          "computed over the train split of the short clips (long sequences left out)",
     }
     (tmp / "dataset.json").write_text(json.dumps(info, indent=1, sort_keys=True) + "\n", encoding="utf-8")
 
 
 def build_dataset(out_dir, num_clips: int = 2000, seed: int = 0, progress: bool = True, workers: int = 2,
-                  overwrite: bool = False) -> Path:
+                  overwrite: bool = False, long_sequences: int | None = None) -> Path:
     """Write a procedural dataset in the HumanML3D folder layout and return its path.
 
+    `num_clips` short clips (ids 0 .. num_clips-1: single actions, every 5th a two-action sequence, 2-10 s)
+    and then `long_sequences` long ones (default num_clips // 10; 20-60 s, 3-8 actions, sequences.py):
       new_joint_vecs/NNNNNN.npy  (T-1, 263) float32 features (mogo_export.data.humanml3d.extract_features)
       new_joints/NNNNNN.npy      (T, 22, 3) float32 joints, canonicalised as HumanML3D's are (floor y=0,
                                  frame 0 root at x=z=0 facing +z); the features have one frame fewer
-      texts/NNNNNN.txt           3-4 lines `caption#word/POS ...#0.0#0.0`
-      labels/NNNNNN.txt          the family (`squat`) or, for a two-action sequence, `seq:first+second`
-      train.txt val.txt test.txt clip ids, an 80/15/5 split
-      Mean.npy Std.npy           feature statistics over the train split (see `mean_std`)
-      dataset.json               generator version, seed, counts, families, fps, skeleton
-    Everything is a function of (num_clips, seed): the same call writes byte-identical files, whatever
-    `workers` is. The dataset is built in a temporary sibling folder and renamed into place at the end.
+      texts/NNNNNN.txt           lines `caption#word/POS ...#start#end`: 3-4 of the whole clip (0.0#0.0);
+                                 a long sequence has 1-2 of the whole and one per action, timed in seconds
+      labels/NNNNNN.txt          the family (`squat`) or, for a sequence, `seq:first+second+...`
+      train.txt val.txt test.txt clip ids, an 80/15/5 split (of the short clips, and of the long ones)
+      Mean.npy Std.npy           feature statistics over the short clips' train split (see `mean_std`)
+      dataset.json               generator version, seed, counts, families, fps, skeleton, and each long
+                                 sequence's segments (family, start and end frame)
+    Everything is a function of (num_clips, long_sequences, seed): the same call writes byte-identical
+    files, whatever `workers` is. The dataset is built in a temporary sibling folder and renamed into
+    place at the end.
     """
     out = Path(out_dir)
     if num_clips < 1:
         raise ValueError(f"num_clips must be >= 1, got {num_clips}")
+    num_long = num_clips // LONG_EVERY if long_sequences is None else int(long_sequences)
+    if num_long < 0:
+        raise ValueError(f"long_sequences must be >= 0, got {long_sequences}")
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} already exists; pass overwrite=True (--overwrite) to replace it")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -158,7 +206,7 @@ def build_dataset(out_dir, num_clips: int = 2000, seed: int = 0, progress: bool 
         (tmp / sub).mkdir(parents=True)
 
     try:
-        _build_into(tmp, num_clips, seed, progress, workers)
+        _build_into(tmp, num_clips, num_long, seed, progress, workers)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)  # never leave a half dataset behind, even a hidden one
         raise
@@ -178,6 +226,7 @@ def main(argv=None) -> None:
                                  description="Write a procedural text-to-motion dataset in the HumanML3D layout.")
     ap.add_argument("out_dir", type=Path)
     ap.add_argument("--clips", type=int, default=2000)
+    ap.add_argument("--long", type=int, default=None, help="long sequences (default: clips // 10)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--overwrite", action="store_true", help="replace OUT_DIR if it exists")
@@ -185,5 +234,6 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     out = build_dataset(args.out_dir, args.clips, args.seed, progress=not args.quiet, workers=args.workers,
-                        overwrite=args.overwrite)
-    print(f"wrote {args.clips} clips to {out} in {time.perf_counter() - t0:.1f} s")
+                        overwrite=args.overwrite, long_sequences=args.long)
+    num_long = json.loads((out / "dataset.json").read_text(encoding="utf-8"))["num_long_sequences"]
+    print(f"wrote {args.clips} clips and {num_long} long sequences to {out} in {time.perf_counter() - t0:.1f} s")

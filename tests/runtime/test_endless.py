@@ -1,0 +1,163 @@
+"""Endless, steerable streams: no end, a new prompt from the next token, a bounded context, timelines.
+
+The toy bundle (tests/runtime/toy_bundle.py) declares window 5 + refresh 3, so a few dozen tokens already go
+through many context rebuilds; its step graph sums every cached key, so a rebuild that kept the wrong tokens, or
+none, changes the logits.
+"""
+import itertools
+import shutil
+
+import numpy as np
+import pytest
+from toy_bundle import REFRESH, WINDOW, build_toy_bundle, toy_bundle  # noqa: F401  (a fixture)
+
+from mogo_runtime import MotionGenerator
+from mogo_runtime.decoding import EndlessLoop, GenerationTask, expand_seeds, generate_tokens, make_rngs
+from mogo_runtime.engine import OrtBackend
+from mogo_runtime.sampling import SamplingConfig
+
+WALK, JUMP = "a person walks forward", "a person jumps twice"
+
+
+@pytest.fixture(scope="module")
+def gen(toy_bundle) -> MotionGenerator:  # noqa: F811
+    return MotionGenerator(toy_bundle)
+
+
+def per_token(gen) -> float:
+    return gen.dims.downsample / gen.dims.fps
+
+
+def test_a_stream_has_no_end_and_its_start_is_a_fixed_length_motion(gen):
+    assert gen.endless
+    n = 20 * gen.max_tokens * gen.dims.downsample                      # far past max_tokens
+    frames = list(itertools.islice(gen.stream(WALK, seed=3), n))
+    assert [f.index for f in frames] == list(range(n)) and np.isfinite(np.stack([f.joints for f in frames])).all()
+    within = WINDOW + REFRESH + 1                                      # tokens before the first rebuild
+    m = gen.generate(WALK, seconds=within * per_token(gen), seed=3)
+    assert np.abs(np.stack([f.joints for f in frames[:m.num_frames]]) - m.joints).max() <= 1e-5
+
+
+def test_the_context_is_rebuilt_and_stays_bounded(toy_bundle):  # noqa: F811
+    backend = OrtBackend(MotionGenerator(toy_bundle).bundle)
+    lengths = []
+    step = backend.step
+    backend.step = lambda emb, tokens, past: (lengths.append(past[0].shape[2] + tokens.shape[1]),
+                                              step(emb, tokens, past))[1]
+    loop = EndlessLoop(backend, backend.encode_text([WALK]), SamplingConfig(), [0], WINDOW, REFRESH)
+    for _ in range(200):
+        loop.step()
+    # the cache holds the prompt prefix and at most window + refresh tokens, every step of a long stream
+    assert max(lengths) == 1 + WINDOW + REFRESH and lengths[:3] == [1, 2, 3]
+    rebuilds = [i for i, (a, b) in enumerate(zip(lengths, lengths[1:])) if b < a]
+    assert len(rebuilds) >= (200 - WINDOW - REFRESH - 1) // (REFRESH + 1) and all(lengths[i + 1] == 1 + WINDOW for i in rebuilds)
+
+
+def test_the_loop_equals_generate_tokens_until_the_first_rebuild(gen):
+    backend, emb = gen.backend, gen.backend.encode_text([WALK, JUMP])
+    for sampling in (SamplingConfig(temperature=0.0), SamplingConfig(temperature=1.0, top_p=0.9),
+                     SamplingConfig(guidance=2.0)):
+        n = WINDOW + REFRESH + 1
+        want = [p for p, _ in generate_tokens(backend, emb, sampling, make_rngs([4, 5]), n, fixed_tokens=n)]
+        loop = EndlessLoop(backend, emb, sampling, [4, 5], WINDOW, REFRESH)
+        assert all(np.array_equal(w, loop.step()) for w in want)
+
+
+def test_set_prompt_takes_effect_at_the_next_token(gen):
+    a = gen.stream(WALK, seed=7, chunk=1)
+    b = gen.stream(WALK, seed=7, chunk=1)
+    fa = list(itertools.islice(a, 40))
+    fb = list(itertools.islice(b, 40))
+    k = b.tokens
+    b.set_prompt(JUMP)
+    assert b.text == JUMP and b.switches == [(k, JUMP, None)]
+    fa += list(itertools.islice(a, 60))
+    fb += list(itertools.islice(b, 60))
+    ja, jb = np.stack([f.joints for f in fa]), np.stack([f.joints for f in fb])
+    assert np.array_equal(ja[:40], jb[:40])                            # nothing already decoded changes
+    assert not np.allclose(ja[40:], jb[40:])                           # the new prompt steers what follows
+    a.close()
+    b.close()
+
+
+def test_a_timeline_is_a_stream_with_prompt_switches(gen):
+    pt = per_token(gen)
+    m = gen.generate([(WALK, 0.0), (JUMP, 10 * pt), (WALK, 25 * pt)], seconds=40 * pt, seed=2)
+    s = gen.stream(WALK, seed=2, chunk=1)
+    tokens = []
+    for t in range(40):
+        if t in (10, 25):
+            s.set_prompt(JUMP if t == 10 else WALK)
+        tokens.append(s._loop.step())
+    assert np.array_equal(m.tokens, np.concatenate(tokens)) and m.num_frames == 40 * gen.dims.downsample
+    assert m.text == f"{WALK} | {JUMP} | {WALK}"
+
+
+def test_long_fixed_lengths_and_batches(gen):
+    m = gen.generate(WALK, seconds=600, seed=1)                        # a 10-minute motion in one call
+    assert m.num_frames == 600 * gen.dims.fps and np.isfinite(m.joints).all()
+    task = GenerationTask(gen.backend, SamplingConfig(), gen.max_tokens, 3 * gen.max_tokens,
+                          gen.bundle.manifest.streaming)
+    emb = gen.backend.encode_text([WALK, JUMP])
+    batch = task.tokens(emb, expand_seeds(9, 2))
+    for i, text in enumerate((WALK, JUMP)):                            # a batch is its rows run alone
+        assert np.array_equal(batch[i], task.tokens(gen.backend.encode_text([text]), [9 + i])[0])
+
+
+@pytest.mark.parametrize("timeline, seconds, match", [
+    ([(WALK, 0.0), (JUMP, 1.0)], None, "needs seconds"),
+    ([(WALK, 0.5), (JUMP, 1.0)], 4, "begin at 0 and increase"),
+    ([(WALK, 0.0), (JUMP, 2.0), (WALK, 1.0)], 4, "begin at 0 and increase"),
+    ([(WALK, 0.0), (JUMP, 5.0)], 4, "before the end"),
+    ([(WALK, 0.0), (3, 1.0)], 4, "pairs"),
+])
+def test_bad_timelines(gen, timeline, seconds, match):
+    with pytest.raises(ValueError, match=match):
+        gen.generate(timeline, seconds=seconds)
+
+
+def test_a_bundle_without_streaming_ends_its_streams_and_refuses_set_prompt(toy_bundle, tmp_path,  # noqa: F811
+                                                                            humanml3d_fixture):
+    plain = build_toy_bundle(tmp_path / "plain", np.load(humanml3d_fixture / "Mean.npy"), streaming=False)
+    g = MotionGenerator(plain)
+    assert not g.endless
+    s = g.stream(WALK, seed=0)
+    frames = list(s)                                                   # the model ends it
+    assert 0 < len(frames) <= g.max_tokens * g.dims.downsample
+    with pytest.raises(ValueError, match="not trained for endless streams"):
+        s.set_prompt(JUMP)
+    with pytest.raises(ValueError, match="between .* seconds for this bundle"):
+        g.generate(WALK, seconds=600)
+    shutil.rmtree(plain)
+
+
+def test_cli_follow_reads_prompts_from_stdin(toy_bundle, capsys, monkeypatch):  # noqa: F811
+    import io
+    import json
+
+    from mogo_runtime.cli import main
+
+    args = ["stream", WALK, "--bundle", str(toy_bundle), "--seconds", "4", "--seed", "5"]
+    assert main(args) == 0
+    plain = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    monkeypatch.setattr("sys.stdin", io.StringIO(f"{JUMP}\n\n"))
+    assert main(args + ["--follow"]) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    events = [x for x in lines if "event" in x]
+    frames = [x for x in lines if "event" not in x]
+    assert len(events) == 1 and events[0]["text"] == JUMP and events[0]["event"] == "prompt"
+    assert events[0]["frame"] == 0 and events[0]["token"] == 1     # read while the bundle loaded
+    assert len(frames) == len(plain) == 4 * 20 and [f["frame"] for f in frames] == list(range(80))
+    assert frames != plain                                            # the stream followed the new prompt
+
+
+def test_cli_follow_needs_an_endless_bundle(tmp_path, capsys, monkeypatch, humanml3d_fixture):
+    import io
+
+    from mogo_runtime.cli import main
+
+    monkeypatch.setattr("sys.stdin", io.StringIO(""))
+
+    plain = build_toy_bundle(tmp_path / "plain", np.load(humanml3d_fixture / "Mean.npy"), streaming=False)
+    assert main(["stream", WALK, "--bundle", str(plain), "--follow"]) == 2
+    assert "needs a bundle trained for endless streams" in capsys.readouterr().err
