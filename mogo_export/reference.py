@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from mogo_runtime.decoding import Generated, GenerationTask, expand_seeds
+from mogo_runtime.manifest import StreamingSpec
 from mogo_runtime.sampling import GREEDY, SamplingConfig
 from mogo_runtime.skeleton import HUMANML3D, Skeleton, get_skeleton
 
@@ -61,8 +62,10 @@ class TorchGenerator:
     """Text -> motion with the PyTorch models (reference for the exported bundle), through the runtime's
     `GenerationTask`; sampling None = greedy."""
 
-    def __init__(self, backend: TorchBackend, skeleton: Skeleton = HUMANML3D):
-        self.backend, self.skeleton = backend, skeleton
+    def __init__(self, backend: TorchBackend, skeleton: Skeleton = HUMANML3D, streaming: StreamingSpec | None = None):
+        # streaming: the endless-stream policy the model was trained for; fixed lengths then run the EndlessLoop,
+        # as the exported bundle does
+        self.backend, self.skeleton, self.streaming = backend, skeleton, streaming
 
     @property
     def max_tokens(self) -> int:
@@ -73,10 +76,11 @@ class TorchGenerator:
         m = load_trained(ckpt_dir)
         backend = TorchBackend(m.vq, m.transformer, get_text_encoder(m.text_encoder_name), m.mean, m.std, fps=m.fps,
                                max_tokens=m.max_tokens, kv_cache=kv_cache)
-        return cls(backend, skeleton=get_skeleton(m.skeleton))
+        return cls(backend, skeleton=get_skeleton(m.skeleton),
+                   streaming=StreamingSpec(**m.streaming) if m.streaming else None)
 
     def task(self, sampling: SamplingConfig | None = None, num_tokens: int | None = None) -> GenerationTask:
-        return GenerationTask(self.backend, sampling or GREEDY, self.max_tokens, num_tokens)
+        return GenerationTask(self.backend, sampling or GREEDY, self.max_tokens, num_tokens, self.streaming)
 
     def generate_tokens(self, texts: list[str], seed: int | list[int] = 0, sampling: SamplingConfig | None = None,
                         num_tokens: int | None = None) -> list[np.ndarray]:
