@@ -4,6 +4,7 @@
     mogo-eval ablation --data data/procedural --out checkpoints/ablation
     mogo-eval train-evaluator --data data/procedural
     mogo-eval evaluate --data data/procedural --checkpoints checkpoints/base --bundle bundles/base
+    mogo-eval stream --bundle bundles/base --variant int8 --minutes 10 --json outputs/stream_eval.json
 """
 from __future__ import annotations
 
@@ -65,6 +66,20 @@ def _evaluate(args) -> int:
     return 0
 
 
+def _stream(args) -> int:
+    from .protocol import write_json
+    from .quality import train_classifier
+    from .streaming import print_report, stream_report
+
+    classifier = args.classifier or train_classifier(args.data, args.checkpoints)
+    report = stream_report(args.bundle, args.data, classifier, args.variant, args.threads, 60 * args.minutes,
+                           args.seed)
+    print_report(report)
+    if args.json:
+        print(f"wrote {write_json(report, args.json)}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from mogo_export.cli import add_training_args
 
@@ -116,6 +131,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, default=None)
     p.set_defaults(run=_evaluate)
+
+    p = sub.add_parser("stream", help="an endless stream with a new prompt every 4-10 s: follows, reacts, smooth, "
+                                      "no drift, bounded memory and time")
+    p.add_argument("--bundle", type=Path, default=Path("bundles/base"))
+    p.add_argument("--variant", default="int8")
+    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads")
+    p.add_argument("--minutes", type=float, default=10.0, help="length of the stream (at least 20 s)")
+    p.add_argument("--data", type=Path, default=Path("data/procedural"),
+                   help="held-out captions, the classifier's training data and the long sequences compared with")
+    p.add_argument("--checkpoints", type=Path, default=Path("checkpoints/base"),
+                   help="where quality's classifier.pt is (trained there if missing)")
+    p.add_argument("--classifier", type=Path, default=None, help="a classifier.pt to use instead")
+    p.add_argument("--seed", type=int, default=0, help="seeds the prompts, their times and the stream")
+    p.add_argument("--json", type=Path, default=None)
+    p.set_defaults(run=_stream)
 
     return ap
 

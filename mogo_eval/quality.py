@@ -21,7 +21,7 @@ from mogo_runtime.files import write_atomic
 from mogo_runtime.sampling import SamplingConfig
 
 from mogo_export.checkpoint import build_from_checkpoint, save_checkpoint
-from mogo_export.data.dataset import MotionDataset
+from mogo_export.data.dataset import MotionDataset, MotionItem
 from mogo_export.reference import TorchGenerator
 from mogo_export.models.vq import MoSAVQ, VQConfig
 from mogo_export.train import evaluate_vq
@@ -98,10 +98,15 @@ def diversity(embeddings: np.ndarray, pairs: int = 300, seed: int = 0) -> float:
     return float(np.linalg.norm(embeddings[a[keep]] - embeddings[b[keep]], axis=-1).mean())
 
 
+def held_out_items(data: Path, families: list[str], splits=("test", "val")) -> list[tuple[MotionItem, str]]:
+    """(item, family) of every single-action item of `splits` whose family is one of `families`."""
+    return [(it, single_family(it.label)) for split in splits
+            for it in MotionDataset.load(data, split).items if single_family(it.label) in families]
+
+
 def held_out_cases(data: Path, families: list[str], splits=("test", "val")) -> list[tuple[str, str]]:
     """(first caption, family) of every single-action clip of `splits`."""
-    return [(it.captions[0], single_family(it.label)) for split in splits
-            for it in MotionDataset.load(data, split).items if single_family(it.label) in families]
+    return [(it.captions[0], family) for it, family in held_out_items(data, families, splits)]
 
 
 def generation_quality(gen: FeatureGenerator, data: Path, classifier_path: Path, seeds: int = 1, batch: int = 16,
