@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from mogo_runtime.bundle import Bundle
-from mogo_runtime.decoding import EndlessLoop, GenerationTask, decode_tokens
+from mogo_runtime.decoding import GenerationTask, decode_tokens
 from mogo_runtime.engine import OrtBackend, open_backend
 from mogo_runtime.features import recover_from_ric
 from mogo_runtime.sampling import GREEDY
@@ -172,16 +172,12 @@ def check_end_to_end(gen: TorchGenerator, fp32: OrtBackend, int8, report: Report
 
 
 def endless_tokens(backend, prompts: list[str], streaming, steps: int, switch_every: int) -> np.ndarray:
-    """Greedy tokens of one endless stream (EndlessLoop) that cycles through `prompts`, switching every
-    `switch_every` tokens: -> (steps, L). Exercises context rebuilds (window slides) and prompt switches."""
-    embs = backend.encode_text(prompts)
-    loop = EndlessLoop(backend, embs[:1], GREEDY, [0], streaming.window, streaming.refresh)
-    out = []
-    for t in range(steps):
-        if t and t % switch_every == 0:
-            loop.set_prompt(embs[(t // switch_every) % len(prompts)][None])
-        out.append(loop.step()[0])
-    return np.stack(out)
+    """Greedy tokens of one endless stream that cycles through `prompts`, switching every `switch_every` tokens
+    (a timeline): -> (steps, L). Exercises context rebuilds (window slides) and prompt switches."""
+    starts = list(range(0, steps, switch_every))
+    embs = backend.encode_text([prompts[k % len(prompts)] for k in range(len(starts))])
+    task = GenerationTask(backend, GREEDY, steps, steps, streaming)
+    return task.timeline(embs, starts, seed=0).tokens
 
 
 def check_endless(gen: TorchGenerator, fp32: OrtBackend, streaming, report: Report, steps: int = 1000,

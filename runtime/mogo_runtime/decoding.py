@@ -114,6 +114,7 @@ class EndlessLoop:
         self.rngs = make_rngs(seeds)
         self.batch = len(seeds)
         self.guided = sampling.guidance != 1.0
+        # a ring of the last window + refresh picked tokens: token t sits at t % (window + refresh)
         self.history = np.zeros((self.batch, window + refresh, backend.dims.num_levels), np.int64)
         self.count = 0                 # tokens picked so far
         self.cached = 0                # motion tokens in the cache (after the prompt prefix)
@@ -135,10 +136,11 @@ class EndlessLoop:
         if self.past is None or self.cached == self.window + self.refresh:
             n = min(self.count, self.window)
             bos = np.full((B, 1, dims.num_levels), dims.bos_id, np.int64)
-            tokens = np.concatenate([bos, self.history[:, self.history.shape[1] - n:]], axis=1)
+            ring = (self.count - n + np.arange(n)) % self.history.shape[1]      # the last n, oldest first
+            tokens = np.concatenate([bos, self.history[:, ring]], axis=1)
             self.past, self.cached = self.backend.empty_past(len(self.rows_emb)), n
         else:
-            tokens, self.cached = self.history[:, -1:], self.cached + 1
+            tokens, self.cached = self.last[:, None], self.cached + 1
         if self.guided:
             tokens = np.concatenate([tokens, tokens])
         logits, self.past = self.backend.step(self.rows_emb, tokens, self.past)
@@ -148,8 +150,7 @@ class EndlessLoop:
         logits = np.array(logits, dtype=np.float32)                             # own copy: masked below
         logits[:, :, dims.end_id] = -np.inf                                     # a stream never ends itself
         picked = sample(logits, self.sampling, self.rngs)                       # (B, L)
-        self.history[:, :-1] = self.history[:, 1:]
-        self.history[:, -1] = picked
+        self.history[:, self.count % self.history.shape[1]] = self.last = picked
         self.count += 1
         return picked
 
