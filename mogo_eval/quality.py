@@ -117,6 +117,7 @@ def generation_quality(gen: FeatureGenerator, data: Path, classifier_path: Path,
     ds = MotionDataset.load(data, "test")
     cases = held_out_cases(data, families)
     truth = np.array([f for _, f in cases])
+    whole = np.array([not it.is_span for it, _ in held_out_items(data, families)])   # not a timed span
     hits, div = [], []
     bar = tqdm(total=seeds * len(cases), desc="generate+classify", unit="motion", disable=not progress)
     for s in range(seeds):
@@ -135,6 +136,7 @@ def generation_quality(gen: FeatureGenerator, data: Path, classifier_path: Path,
     hits = np.stack(hits)                                   # (seeds, cases)
     _, gt_emb = classify(model, families, [ds.normalize(it.features) for it in ds.items])
     return {"overall_accuracy": float(hits.mean()), "accuracy_per_seed": hits.mean(1).tolist(),
+            "whole_clip_accuracy": float(hits[:, whole].mean()), "whole_clips": int(whole.sum()),
             "per_family": {f: float(hits[:, truth == f].mean()) for f in sorted(set(truth))},
             "cases": len(cases), "seeds": seeds,
             "diversity": float(np.mean(div)), "diversity_real": diversity(gt_emb)}

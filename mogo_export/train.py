@@ -196,20 +196,19 @@ def _clip_examples(seqs, caps, emb, rng, n, cfg, by_length=None) -> list:
 
 
 def _window_examples(timelines, emb, rng, n, cfg, streaming) -> list:
-    """Streaming windows: the prompt prefix of one segment, then up to window + refresh tokens of the clip ending
-    inside that segment. Only tokens of the prompt's segment are targets: the earlier ones (another action, or
-    the same one begun before the window) are context, as after a prompt switch or a context rebuild at run
-    time. No END: a stream never ends by itself."""
+    """Streaming windows, the contexts an endless stream refreshes to (mogo_runtime.decoding.EndlessLoop): the
+    prompt prefix of one timed segment of a long sequence, then 1 to window + refresh of that segment's tokens,
+    ending anywhere in it, so the context often begins mid-action rather than where a motion starts. All are
+    targets; no END (the data's action does not end there, it changes). The stream keeps nothing across a prompt
+    switch, so windows never reach into the previous segment."""
     out = []
     for _ in range(n):
         seq, segments = timelines[rng.integers(len(timelines))]
         first, stop, captions = segments[rng.integers(len(segments))]
         end = int(rng.integers(first, stop))                     # the last target
-        start = max(0, end + 1 - int(rng.integers(1, streaming.window + streaming.refresh + 1)))
+        start = max(first, end + 1 - int(rng.integers(1, streaming.window + streaming.refresh + 1)))
         tin = np.concatenate([np.full((1, cfg.num_levels), cfg.bos_id), seq[start:end]])
-        tgt = seq[start:end + 1].copy()
-        tgt[:max(0, first - start)] = cfg.pad_id                 # context from before the segment: no loss
-        out.append((emb[captions[rng.integers(len(captions))]], tin, tgt))
+        out.append((emb[captions[rng.integers(len(captions))]], tin, seq[start:end + 1]))
     return out
 
 

@@ -40,6 +40,10 @@ class MotionItem(NamedTuple):
     captions: list[str]
     label: str | None
 
+    @property
+    def is_span(self) -> bool:
+        return ":" in self.clip_id
+
 
 class Segment(NamedTuple):
     family: str

@@ -206,14 +206,13 @@ class RQHCTransformer(nn.Module):
         """Cross-entropy of eq. 11, averaged over the valid (step, level) pairs, and accuracy.
 
         tokens_in (B, S, L): [BOS, t_0, ..., t_{T-1}, PAD...]; targets (B, S, L): [t_0, ..., t_{T-1}, END, PAD...];
-        lengths (B,): T, the motion length in tokens, so the first T + 1 steps (END included) count. A PAD target
-        inside that length is context, not a target (streaming windows, see train._window_examples).
+        lengths (B,): T, the motion length in tokens, so the first T + 1 steps (END included) count.
         Returns (loss, {"acc": (), "acc_per_level": (L,), "count": () the (step, level) pairs averaged over}).
         """
         B, S, L = tokens_in.shape
         logits = self(text_emb, tokens_in)  # (B, S, L, K+1)
         valid = torch.arange(S, device=tokens_in.device) <= lengths.unsqueeze(1)  # (B, S)
-        valid = valid.unsqueeze(-1).expand(B, S, L) & (targets != self.cfg.pad_id)  # (B, S, L)
+        valid = valid.unsqueeze(-1).expand(B, S, L)  # (B, S, L)
         tgt = targets.masked_fill(~valid, 0)  # PAD is not a class of the head
         ce = F.cross_entropy(logits.flatten(0, 2), tgt.flatten(), reduction="none").view(B, S, L)
         n = valid.sum()

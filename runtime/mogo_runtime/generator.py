@@ -128,9 +128,10 @@ class MotionGenerator:
         """One motion per prompt (a list for a list), all prompts in one batched loop.
 
         Prompt i of a list uses seed `seed + i` (or `seed[i]`), so it gets the motion a lone run with that
-        seed gets. `seconds` fixes the length (rounded half up to whole tokens, END never chosen); None lets
-        the model end the motion, at most `max_seconds`. On a bundle trained for endless streams a fixed length
-        may be any length up to MAX_SECONDS (`seconds=600`: a 10-minute motion), and a timeline
+        seed gets. `seconds` fixes the length (rounded half up to whole tokens); None lets the model end the
+        motion, at most `max_seconds`. On a bundle trained for endless streams a fixed length may be any length
+        up to MAX_SECONDS (`seconds=600`: a 10-minute motion; where the model ends the action it starts it
+        again), and a timeline
         `[(prompt, start_seconds), ...]` (starts from 0, increasing; `seconds` required) gives one motion that
         follows each prompt from its start. `sampling` None: the bundle's sampling defaults. `align=True` (or an
         Aligner) rewrites each prompt into the training captions' style first (TCA); the motion's

@@ -7,7 +7,8 @@ import pytest
 
 from mogo_eval.cli import main
 from mogo_eval.features import FeatureGenerator
-from mogo_eval.quality import classify, generation_quality, held_out_cases, load_classifier, train_classifier
+from mogo_eval.quality import (classify, generation_quality, held_out_cases, held_out_items, load_classifier,
+                               train_classifier)
 from mogo_export.data.dataset import MotionDataset
 
 
@@ -57,6 +58,10 @@ def test_a_generator_that_ignores_the_text_scores_only_its_one_family(data, clas
 
     truth = [f for _, f in held_out_cases(data, families)]
     assert report["overall_accuracy"] == pytest.approx(np.mean([f == judged for f in truth]))
+    items = held_out_items(data, families)
+    whole = [f == judged for (it, _), f in zip(items, truth) if not it.is_span]
+    assert 0 < report["whole_clips"] == len(whole) < len(items)           # the data has timed spans too
+    assert report["whole_clip_accuracy"] == pytest.approx(np.mean(whole))
     assert all(acc == (1.0 if fam == judged else 0.0) for fam, acc in report["per_family"].items())
     assert report["diversity"] == pytest.approx(0.0, abs=1e-5)        # one motion, no spread
 

@@ -221,3 +221,23 @@ def test_a_failed_checkpoint_write_keeps_the_previous_file(tmp_path, monkeypatch
     with pytest.raises(OSError, match="disk full"):
         save_checkpoint(path, "vq", cfg, V.MoSAVQ(cfg), {"step": 2})
     assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["vq.pt"]
+
+
+def test_streaming_windows_stay_inside_one_timed_segment():
+    from mogo_export.presets import Streaming
+
+    cfg = get_preset("tiny").transformer_config()
+    L, streaming = cfg.num_levels, Streaming(window=5, refresh=3, windows=4)
+    # one 30-token sequence in three timed segments; token t's codes are t, so a window says where it came from
+    seq = np.arange(30)[:, None].repeat(L, axis=1)
+    segments = [(0, 10, ["a"]), (10, 20, ["b"]), (20, 30, ["c"])]
+    emb = {c: np.full(4, i, np.float32) for i, c in enumerate("abc")}
+    windows = train._window_examples([(seq, segments)], emb, np.random.default_rng(0), 400, cfg, streaming)
+    for text, tin, tgt in windows:
+        segment = int(text[0])
+        assert (tin[0] == cfg.bos_id).all() and len(tin) == len(tgt) and 1 <= len(tgt) <= 8
+        assert (tgt[:, 0] // 10 == segment).all()                          # the prompt's own segment only
+        assert np.array_equal(tin[1:], tgt[:-1])                            # inputs are the targets shifted by one
+    assert {len(t) for _, _, t in windows} == set(range(1, 9))              # every context length is trained
+    first = [int(t[0, 0]) % 10 for _, _, t in windows]
+    assert first.count(0) > 20 and sum(f > 0 for f in first) > 200          # at segment starts and mid-action

@@ -17,6 +17,7 @@ from mogo_runtime.engine import OrtBackend
 from mogo_runtime.sampling import SamplingConfig
 
 WALK, JUMP = "a person walks forward", "a person jumps twice"
+CIRCLE = "a person walks in a circle"          # the toy model ends it late (24 tokens greedy), the others soon
 
 
 @pytest.fixture(scope="module")
@@ -38,29 +39,95 @@ def test_a_stream_has_no_end_and_its_start_is_a_fixed_length_motion(gen):
     assert np.abs(np.stack([f.joints for f in frames[:m.num_frames]]) - m.joints).max() <= 1e-5
 
 
+class Recorded:
+    """A backend whose step calls are recorded (input tokens, cache length before the call); `force_end` maps a
+    step call's index to the level-0 END logit to use there (1e9: END is picked, -1e9: never)."""
+
+    def __init__(self, backend, force_end=None):
+        self.backend, self.dims, self.force_end, self.calls = backend, backend.dims, force_end or {}, []
+
+    def __getattr__(self, name):
+        return getattr(self.backend, name)
+
+    def step(self, emb, tokens, past):
+        logits, present = self.backend.step(emb, tokens, past)
+        end = self.force_end.get(len(self.calls), self.force_end.get("all"))
+        self.calls.append((tokens.copy(), past[0].shape[2]))
+        if end is not None:
+            logits = np.array(logits)
+            logits[:, -1, 0, self.dims.end_id] = end
+        return logits, present
+
+
+def rebuilt(call, dims) -> bool:
+    tokens, past = call
+    return past == 0 and (tokens[:, 0] == dims.bos_id).all()
+
+
 def test_the_context_is_rebuilt_and_stays_bounded(toy_bundle):  # noqa: F811
-    backend = OrtBackend(MotionGenerator(toy_bundle).bundle)
-    lengths = []
-    step = backend.step
-    backend.step = lambda emb, tokens, past: (lengths.append(past[0].shape[2] + tokens.shape[1]),
-                                              step(emb, tokens, past))[1]
+    backend = Recorded(OrtBackend(MotionGenerator(toy_bundle).bundle), {"all": -1e9})    # a model that never ends
     loop = EndlessLoop(backend, backend.encode_text([WALK]), SamplingConfig(), [0], WINDOW, REFRESH)
     for _ in range(200):
         loop.step()
+    lengths = [past + tokens.shape[1] for tokens, past in backend.calls]
     # the cache holds the prompt prefix and at most window + refresh tokens, every step of a long stream
-    assert max(lengths) == 1 + WINDOW + REFRESH and lengths[:3] == [1, 2, 3]
+    assert max(lengths) == 1 + WINDOW + REFRESH and lengths[:3] == [1, 2, 3] and len(lengths) == 200
     rebuilds = [i for i, (a, b) in enumerate(zip(lengths, lengths[1:])) if b < a]
     assert len(rebuilds) >= (200 - WINDOW - REFRESH - 1) // (REFRESH + 1) and all(lengths[i + 1] == 1 + WINDOW for i in rebuilds)
+    # a rebuild feeds [BOS, the last `window` tokens picked], oldest first
+    picked = np.stack([tokens[0, -1] for tokens, _ in backend.calls[1:]])          # token t is fed at call t + 1
+    for i in rebuilds:
+        tokens, past = backend.calls[i + 1]
+        assert past == 0 and (tokens[0, 0] == backend.dims.bos_id).all()
+        assert np.array_equal(tokens[0, 1:], picked[i - WINDOW + 1:i + 1])
 
 
-def test_the_loop_equals_generate_tokens_until_the_first_rebuild(gen):
-    backend, emb = gen.backend, gen.backend.encode_text([WALK, JUMP])
-    for sampling in (SamplingConfig(temperature=0.0), SamplingConfig(temperature=1.0, top_p=0.9),
-                     SamplingConfig(guidance=2.0)):
-        n = WINDOW + REFRESH + 1
-        want = [p for p, _ in generate_tokens(backend, emb, sampling, make_rngs([4, 5]), n, fixed_tokens=n)]
-        loop = EndlessLoop(backend, emb, sampling, [4, 5], WINDOW, REFRESH)
-        assert all(np.array_equal(w, loop.step()) for w in want)
+def test_the_loop_equals_generate_tokens_until_its_first_end_or_refresh(gen):
+    backend = gen.backend
+    compared = 0
+    for text, seed in ((CIRCLE, 4), (CIRCLE, 6), (JUMP, 5)):
+        emb = backend.encode_text([text])
+        for sampling in (SamplingConfig(temperature=0.0), SamplingConfig(temperature=1.0, top_p=0.9),
+                         SamplingConfig(guidance=2.0)):
+            want = [p for p, alive in generate_tokens(backend, emb, sampling, make_rngs([seed]), 64) if alive[0]]
+            loop = EndlessLoop(backend, emb, sampling, [seed], WINDOW, REFRESH)
+            got = [loop.step() for _ in range(len(want) + 3)]
+            same = min(len(want), WINDOW + REFRESH + 1)                  # then a refresh keeps only `window`
+            assert all(np.array_equal(w, g) for w, g in zip(want[:same], got))
+            assert loop.restarts >= (len(want) <= WINDOW + REFRESH)      # an END within reach restarts the motion
+            assert all(g[0, 0] != gen.dims.end_id for g in got)
+            compared += same
+    assert compared > 30                      # long motions too, not only immediate ENDs
+
+
+def test_end_restarts_the_prompt_with_nothing_kept(toy_bundle):  # noqa: F811
+    # call 6 picks END (after 6 tokens): that call's draw is discarded, call 7 rebuilds [BOS] and picks again
+    backend = Recorded(OrtBackend(MotionGenerator(toy_bundle).bundle), {"all": -1e9, 6: 1e9})
+    loop = EndlessLoop(backend, backend.encode_text([JUMP]), SamplingConfig(), [3], WINDOW, REFRESH)
+    picked = [loop.step() for _ in range(12)]
+    assert loop.restarts == 1 and len(backend.calls) == 13 and all(p[0, 0] != backend.dims.end_id for p in picked)
+    assert [i for i, c in enumerate(backend.calls) if rebuilt(c, backend.dims)] == [0, 7]
+    assert backend.calls[7][0].shape[1] == 1                          # nothing of the ended motion kept
+    # after the restart the loop is a fresh motion of the same prompt, continuing the same random stream
+    fresh = Recorded(backend.backend, {"all": -1e9})
+    rngs = make_rngs([3])
+    again = EndlessLoop(fresh, backend.encode_text([JUMP]), SamplingConfig(), [3], WINDOW, REFRESH)
+    again.rngs = rngs
+    for _ in range(7):                                                # the 7 draws the first loop consumed
+        rngs[0].random(backend.dims.num_levels)
+    assert all(np.array_equal(a, b) for a, b in zip(picked[6:], [again.step() for _ in range(6)]))
+
+
+def test_a_new_prompt_starts_from_nothing_kept(toy_bundle):  # noqa: F811
+    backend = Recorded(OrtBackend(MotionGenerator(toy_bundle).bundle), {"all": -1e9})
+    loop = EndlessLoop(backend, backend.encode_text([WALK]), SamplingConfig(guidance=2.0), [3], WINDOW, REFRESH)
+    for t in range(10):
+        if t == 4:
+            loop.set_prompt(backend.encode_text([JUMP]))
+        loop.step()
+    assert [i for i, c in enumerate(backend.calls) if rebuilt(c, backend.dims)] == [0, 4]
+    tokens, _ = backend.calls[4]
+    assert tokens.shape == (2, 1, backend.dims.num_levels)           # both guidance rows, [BOS] only
 
 
 def test_set_prompt_takes_effect_at_the_next_token(gen):
