@@ -6,7 +6,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.mogo-installed
 
-.PHONY: setup demo test test-export test-eval test-runtime bench clean
+.PHONY: setup demo test test-export test-eval test-runtime test-js bench clean
 
 setup: $(STAMP)
 
@@ -21,7 +21,7 @@ demo: $(STAMP)
 	$(PY) -m mogo_export.demo
 
 # The runtime's tests run in their own process with torch and mogo_export made unimportable.
-test: $(STAMP) test-export test-eval test-runtime
+test: $(STAMP) test-export test-eval test-runtime test-js
 
 test-export: $(STAMP)
 	$(PY) -m pytest -q tests/export
@@ -32,6 +32,11 @@ test-eval: $(STAMP)
 
 test-runtime: $(STAMP)
 	MOGO_BLOCK_TORCH=1 $(PY) -m pytest -q tests/runtime
+
+# The JavaScript runtime (js/) against the Python runtime: same tokens, on freshly built toy bundles and a tiny
+# trained bundle (the real exporter's graphs; trained here, ~2 min). npm installs onnxruntime-node on first use.
+test-js: $(STAMP)
+	MOGO_JS_TINY=1 bash js/test/run.sh
 
 bench: $(STAMP)
 	$(PY) -m benchmarks.run

@@ -1,0 +1,157 @@
+// The graphs of one bundle variant on onnxruntime: the backend the token loop drives
+// (runtime/mogo_runtime/engine.py: OrtBackend + RowByRow).
+//
+// Arrays are flat typed arrays in row-major order with their shape given beside them. The KV cache is the
+// list of `present.*` tensors a step returns, fed back as the next step's `past_key_values.*` as they are.
+// Quantized graphs run one row (one prompt, one guidance branch) per call: dynamic int8 scales activations by
+// the range of the whole input tensor, so in a batch a row's numbers would depend on its neighbours
+// (docs/bundle.md, the generation loop, step 3). Their cache is then one list of tensors per row.
+
+import { BundleError, GRAPHS, graphFile } from './manifest.js';
+import { Tokenizer } from './tokenizer.js';
+import { createSession } from './io.js';
+
+const MAX_THREADS = 64;
+const TEXT_BATCH = 64;   // prompts per text-encoder call, as TextEncoderSession.encode
+
+export class OrtBackend {
+  /**
+   * @param {import('./bundle.js').Bundle} bundle
+   * @param {string} variant e.g. 'fp32', 'int8'
+   * @param {{ort: object, threads?: number, providers?: string[]}} options
+   */
+  static async open(bundle, variant, { ort, threads = 1, providers }) {
+    const manifest = bundle.manifest;
+    if (!Object.hasOwn(manifest.variants, variant)) {
+      throw new BundleError(`unknown variant ${JSON.stringify(variant)}; bundle ${bundle.where} has ${Object.keys(manifest.variants).join(', ')}`);
+    }
+    if (!Number.isInteger(threads) || threads < 1 || threads > MAX_THREADS) {
+      throw new RangeError(`threads must be an int in [1, ${MAX_THREADS}], got ${threads}`);
+    }
+    const tokenizerFile = manifest.textEncoder.tokenizer;
+    const tokenizer = Tokenizer.fromText(new TextDecoder().decode(await bundle.read(tokenizerFile)),
+      `${bundle.where.replace(/\/$/, '')}/${tokenizerFile}`);
+    if (tokenizer.maxLength !== manifest.textEncoder.maxLength) {
+      throw new BundleError(`${tokenizer.source}: cuts at ${tokenizer.maxLength} tokens; manifest text_encoder.max_length is `
+        + `${manifest.textEncoder.maxLength}`);
+    }
+    const sessions = {};
+    for (const graph of GRAPHS) {
+      const { file } = graphFile(manifest, graph, variant);
+      const bytes = await bundle.read(file);
+      try {
+        sessions[graph] = await createSession(ort, bytes, { threads, providers });
+      } catch (e) {
+        throw new BundleError(`${bundle.where.replace(/\/$/, '')}/${file}: onnxruntime cannot load it (${e.message})`);
+      }
+      bundle.checkSession(graph, file, sessions[graph]);
+    }
+    const rowByRow = new Set(GRAPHS.filter((g) => graphFile(manifest, g, variant).quantized));
+    return new OrtBackend(ort, manifest, variant, tokenizer, sessions, rowByRow);
+  }
+
+  constructor(ort, manifest, variant, tokenizer, sessions, rowByRow) {
+    this.ort = ort;
+    this.manifest = manifest;
+    this.dims = manifest.model;
+    this.variant = variant;
+    this.tokenizer = tokenizer;
+    this.sessions = sessions;
+    this.rowByRow = rowByRow;   // graphs that run one row per call (the quantized ones)
+    this.cacheHeads = this.dims.numLevels * this.dims.nHeads;   // past: [rows, L * n_heads, past, head_dim]
+  }
+
+  /** Prompts -> (N, text_dim) float32 embeddings, 64 prompts per call (one per call when quantized). */
+  async encodeText(texts) {
+    const E = this.dims.textDim;
+    const out = new Float32Array(texts.length * E);
+    const size = this.rowByRow.has('text_encoder') ? 1 : TEXT_BATCH;
+    for (let i = 0; i < texts.length; i += size) {
+      const { inputIds, attentionMask, dims } = this.tokenizer.encodeBatch(texts.slice(i, i + size));
+      const result = await this.sessions.text_encoder.run({
+        input_ids: new this.ort.Tensor('int64', inputIds, dims),
+        attention_mask: new this.ort.Tensor('int64', attentionMask, dims),
+      });
+      const emb = result.text_embedding;
+      if (emb.dims[1] !== E) {
+        throw new BundleError(`text encoder returned width ${emb.dims[1]}, manifest model.text_dim is ${E}`);
+      }
+      out.set(emb.data, i * E);
+    }
+    return out;
+  }
+
+  /** The cache of `rows` rows before the first step: every past tensor empty. */
+  emptyPast(rows) {
+    const one = (n) => {
+      const empty = new this.ort.Tensor('float32', new Float32Array(0), [n, this.cacheHeads, 0, this.dims.headDim]);
+      return this.manifest.pastNames.map(() => empty);
+    };
+    return this.rowByRow.has('step') ? Array.from({ length: rows }, () => one(1)) : one(rows);
+  }
+
+  /**
+   * One step call.
+   * @param {Float32Array} textEmb (rows, text_dim)
+   * @param {Int32Array} tokens (rows, steps, L)
+   * @param {number} rows
+   * @param {object} past from emptyPast or the previous step
+   * @returns {Promise<{logits: Float32Array, past: object}>} logits (rows, steps, L, K + 1)
+   */
+  async step(textEmb, tokens, rows, past) {
+    if (!this.rowByRow.has('step')) return this.#step(textEmb, tokens, rows, past);
+    const E = this.dims.textDim, perRow = tokens.length / rows;
+    const outs = [];
+    for (let r = 0; r < rows; r++) {
+      outs.push(await this.#step(textEmb.slice(r * E, (r + 1) * E), tokens.slice(r * perRow, (r + 1) * perRow), 1, past[r]));
+    }
+    return { logits: concat(outs.map((o) => o.logits)), past: outs.map((o) => o.past) };
+  }
+
+  async #step(textEmb, tokens, rows, past) {
+    const L = this.dims.numLevels;
+    const feed = {
+      text_embedding: new this.ort.Tensor('float32', textEmb, [rows, this.dims.textDim]),
+      tokens: new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [rows, tokens.length / (rows * L), L]),
+    };
+    this.manifest.pastNames.forEach((name, i) => { feed[name] = past[i]; });
+    const out = await this.sessions.step.run(feed);
+    return { logits: out.logits.data, past: this.manifest.presentNames.map((name) => out[name]) };
+  }
+
+  /**
+   * Codebook lookup + causal decoder.
+   * @param {Int32Array} tokens (B, T, L) valid codes
+   * @returns {Promise<Float32Array>} de-normalised features (B, T * downsample, feature_dim)
+   */
+  async decode(tokens, batch) {
+    if (!this.rowByRow.has('lookup') && !this.rowByRow.has('decoder')) return this.#decode(tokens, batch);
+    const perRow = tokens.length / batch;
+    const outs = [];
+    for (let r = 0; r < batch; r++) outs.push(await this.#decode(tokens.slice(r * perRow, (r + 1) * perRow), 1));
+    return concat(outs);
+  }
+
+  async #decode(tokens, batch) {
+    const L = this.dims.numLevels;
+    const ids = new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [batch, tokens.length / (batch * L), L]);
+    const { latent } = await this.sessions.lookup.run({ tokens: ids });
+    const { features } = await this.sessions.decoder.run({ latent });
+    return features.data;
+  }
+
+  /** Free the sessions' native memory (the backend cannot be used afterwards). */
+  async release() {
+    for (const session of Object.values(this.sessions)) await session.release?.();
+  }
+}
+
+function concat(arrays) {
+  const out = new Float32Array(arrays.reduce((n, a) => n + a.length, 0));
+  let at = 0;
+  for (const a of arrays) {
+    out.set(a, at);
+    at += a.length;
+  }
+  return out;
+}

@@ -1,0 +1,238 @@
+// Text to motion with a bundle: `MotionGenerator` is the user's API (runtime/mogo_runtime/generator.py).
+//
+//   const gen = await MotionGenerator.load('bundles/base', { variant: 'int8' });
+//   const motion = await gen.generate('a person walks forward', { seconds: 6, seed: 1 });
+//   const s = await gen.stream('a person walks forward', { seed: 1 });
+//   for await (const frame of s) { if (frame.time === 6) await s.setPrompt('a person turns left'); ... }
+//
+// The recipe is task.js (shared with nothing else here, and step for step Python's GenerationTask); this module
+// checks what a user asks for, with Python's checks and defaults, and shapes the results.
+
+import { Bundle } from './bundle.js';
+import { OrtBackend } from './engine.js';
+import { fileLoader } from './io.js';
+import { expandSeeds } from './loop.js';
+import { SamplingConfig } from './sampling.js';
+import { GenerationTask } from './task.js';
+
+export const MAX_SECONDS = 3600;   // the longest fixed length on an endless bundle: the whole motion is kept
+
+/** Reject what would silently embed to nonsense: an empty list, non-strings, blank prompts (text.check_texts). */
+export function checkTexts(texts) {
+  if (!Array.isArray(texts)) throw new TypeError('expected a list of prompts');
+  if (!texts.length) throw new RangeError('got an empty list of prompts');
+  texts.forEach((t, i) => {
+    if (typeof t !== 'string') throw new TypeError(`prompt ${i} is a ${t === null ? 'null' : typeof t}, expected a string`);
+    if (!t.trim()) {
+      throw new RangeError(`prompt ${i} is empty or whitespace only (${JSON.stringify(t)}); describe a motion, e.g. 'a person walks forward'`);
+    }
+  });
+  return texts;
+}
+
+export class MotionGenerator {
+  /**
+   * @param {string|{where: string, readBytes: Function}} source a bundle folder, or a loader (io.js)
+   * @param {object} [options]
+   * @param {string} [options.variant='fp32'] a variant the manifest lists ('fp32', 'int8', ...)
+   * @param {number} [options.threads=1] onnxruntime intra-op threads per graph
+   * @param {object} [options.ort] the onnxruntime module (default: onnxruntime-node)
+   * @param {string[]} [options.providers] execution providers (default ['cpu']; ['wasm'] with onnxruntime-web)
+   * @param {boolean} [options.verifyHashes=true] check each file read against the manifest's sha256
+   */
+  static async load(source, { variant = 'fp32', threads = 1, ort = null, providers, verifyHashes = true } = {}) {
+    if (typeof variant !== 'string' || !variant) {
+      throw new TypeError(`variant must be a variant name such as 'fp32' or 'int8', got ${String(variant)}`);
+    }
+    const loader = typeof source === 'string' ? fileLoader(source) : source;
+    const bundle = await Bundle.load(loader, { verifyHashes });
+    const runtime = ort ?? (await import('onnxruntime-node'));
+    const backend = await OrtBackend.open(bundle, variant, { ort: runtime, threads, providers });
+    return new MotionGenerator(bundle, backend);
+  }
+
+  constructor(bundle, backend) {
+    this.bundle = bundle;
+    this.backend = backend;
+    this.variant = backend.variant;
+    this.dims = bundle.manifest.model;
+    this.skeleton = bundle.manifest.skeleton;
+    this.fps = this.dims.fps;
+    this.maxTokens = this.dims.maxTokens;
+    this.maxSeconds = this.dims.maxSeconds;
+    this.samplingDefaults = bundle.manifest.samplingDefaults;
+  }
+
+  /** Whether the bundle was trained for endless streams (stream without end, setPrompt, long lengths). */
+  get endless() {
+    return this.bundle.manifest.streaming !== null;
+  }
+
+  /**
+   * One motion per prompt (an array for an array), all prompts in one batched loop.
+   *
+   * Prompt i of an array uses seed `seed + i` (or `seed[i]`), so it gets the motion a lone run with that seed
+   * gets. `seconds` fixes the length (rounded half up to whole tokens); null lets the model end the motion, at
+   * most `maxSeconds`. On an endless bundle a fixed length may be up to MAX_SECONDS, and a timeline
+   * `[[prompt, startSeconds], ...]` (starts from 0, increasing; `seconds` required) gives one motion that
+   * follows each prompt from its start. `sampling` null: the bundle's defaults.
+   * @returns {Promise<Motion|Motion[]>} Motion: {text, seed, fps, tokens, features, joints, numFrames, seconds},
+   *   tokens {data: Int32Array, dims: [T, L]}, features {data, dims: [F, D]}, joints {data, dims: [F, J, 3]}
+   */
+  async generate(text, { seconds = null, seed = 0, sampling = null, onProgress = null } = {}) {
+    if (Array.isArray(text) && text.length && text.every(Array.isArray)) {
+      return this.#timeline(text, seconds, seed, sampling, onProgress);
+    }
+    const texts = checkTexts(typeof text === 'string' ? [text] : text);
+    const { task, emb, seeds } = await this.#prepare(texts, seconds, seed, sampling);
+    const results = await task.run(emb, seeds, onProgress);
+    const motions = results.map((r, i) => this.#motion(texts[i], r, seeds[i]));
+    return typeof text === 'string' ? motions[0] : motions;
+  }
+
+  async #timeline(timeline, seconds, seed, sampling, onProgress) {
+    if (seconds === null || seconds === undefined) throw new RangeError('a timeline needs seconds, the length of the whole motion');
+    if (!timeline.every((item) => item.length === 2 && typeof item[0] === 'string')) {
+      throw new TypeError('a timeline is a list of [prompt, startSeconds] pairs');
+    }
+    const texts = checkTexts(timeline.map(([t]) => t));
+    const total = this.tokensFor(seconds);
+    const starts = timeline[0][1] === 0 ? timeline.map(([, s]) => (s ? this.tokensFor(s) : 0)) : null;
+    if (starts === null || starts.some((s, i) => i > 0 && s <= starts[i - 1]) || starts[starts.length - 1] >= total) {
+      throw new RangeError(`timeline starts must begin at 0 and increase, each before the end (${seconds} s); got `
+        + `${JSON.stringify(timeline.map(([, s]) => s))}`);
+    }
+    const first = expandSeeds(seed, 1)[0];
+    const { task, emb } = await this.#prepare(texts, seconds, texts.map(() => first), sampling);
+    const r = await task.timeline(emb, starts, first, onProgress);
+    return this.#motion(texts.join(' | '), r, first);
+  }
+
+  /**
+   * Frames of one prompt's motion as its tokens are sampled and decoded. On an endless bundle the stream has no
+   * end unless `seconds` is given, and `setPrompt` changes the prompt from the next token; `close()` ends it.
+   * The first token's frames come at once, then `chunk` tokens at a time. Arguments are checked and the prompt
+   * encoded here, before the first frame is asked for.
+   * @returns {Promise<FrameStream>} an async iterator of {index, time, features (D), joints (J * 3)}
+   */
+  async stream(text, { seconds = null, seed = 0, sampling = null, chunk = 4 } = {}) {
+    if (typeof text !== 'string') {
+      throw new TypeError(`stream() takes one prompt (a string), got ${typeof text}; use generate() for a batch`);
+    }
+    const { task, emb, seeds } = await this.#prepare(checkTexts([text]), seconds, seed, sampling);
+    return new FrameStream(this, task, emb, seeds[0], chunk, text);
+  }
+
+  /** Seconds -> a fixed number of tokens (half up), or null; RangeError outside the bundle's range. */
+  tokensFor(seconds) {
+    if (seconds === null || seconds === undefined) return null;
+    const perToken = this.dims.downsample / this.dims.fps;
+    const [most, limit] = this.endless ? [MAX_SECONDS, 'endless streams'] : [this.maxSeconds, 'this bundle'];
+    const allowed = `between ${perToken} and ${most} seconds for ${limit} (${this.dims.downsample} frames per token at `
+      + `${this.dims.fps} fps)`;
+    if (typeof seconds !== 'number') throw new TypeError(`seconds must be a number ${allowed}, got ${String(seconds)}`);
+    if (!Number.isFinite(seconds) || !(seconds >= perToken / 2 && seconds <= most + perToken)) {
+      throw new RangeError(`seconds must be ${allowed}, got ${seconds}`);
+    }
+    const tokens = Math.floor(seconds / perToken + 0.5 + 1e-9);   // the epsilon keeps 6.0 s from landing just below
+    if (tokens < 1 || tokens > (this.endless ? Math.round(most / perToken) : this.maxTokens)) {
+      throw new RangeError(`seconds must be ${allowed}, got ${seconds}`);
+    }
+    return tokens;
+  }
+
+  /** What generate and stream share: checked arguments, the task, the prompts' embeddings and seeds. */
+  async #prepare(texts, seconds, seed, sampling) {
+    const fixedTokens = this.tokensFor(seconds);
+    const config = sampling === null || sampling === undefined ? this.samplingDefaults : SamplingConfig.from(sampling);
+    const seeds = expandSeeds(seed, texts.length);
+    const emb = await this.backend.encodeText(texts);
+    const task = new GenerationTask({ backend: this.backend, sampling: config, maxTokens: this.maxTokens, fixedTokens,
+      streaming: this.bundle.manifest.streaming });
+    return { task, emb, seeds };
+  }
+
+  #motion(text, { tokens, features, joints }, seed) {
+    const { numLevels: L, featureDim: D } = this.dims;
+    const J = this.skeleton.parents.length, frames = features.length / D;
+    return {
+      text, seed, fps: this.fps, numFrames: frames, seconds: frames / this.fps,
+      tokens: { data: tokens, dims: [tokens.length / L, L] },
+      features: { data: features, dims: [frames, D] },
+      joints: { data: joints, dims: [frames, J, 3] },
+    };
+  }
+
+  /** Free the onnxruntime sessions. */
+  async release() {
+    await this.backend.release();
+  }
+}
+
+/**
+ * What `MotionGenerator.stream` returns: an async iterator of frames, the prompt it follows now, and, on an
+ * endless bundle, `setPrompt` to change what the character does from the next token sampled.
+ */
+export class FrameStream {
+  constructor(gen, task, emb, seed, chunk, text) {
+    this.gen = gen;
+    this.text = text;
+    this.switches = [];                   // {token, text} of each prompt switch, when it took effect
+    this.pending = Promise.resolve();     // a prompt switch still being encoded
+    this.loop = task.streaming !== null ? task.loop(emb, [seed]) : null;
+    this.chunks = task.stream(emb, seed, chunk, this.loop, () => this.pending);
+    this.frames = this.#frames();
+  }
+
+  [Symbol.asyncIterator]() {
+    return this;
+  }
+
+  next() {
+    return this.frames.next();
+  }
+
+  return() {
+    return this.frames.return();
+  }
+
+  /** Tokens sampled so far (frames lag behind by the decoding chunk). */
+  get tokens() {
+    return this.loop ? this.loop.count : 0;
+  }
+
+  /**
+   * Follow `text` from the next token sampled on (frames already decoded do not change). The switch lands
+   * at the next token even if this promise is not awaited first.
+   */
+  setPrompt(text) {
+    if (this.loop === null) {
+      throw new Error("this bundle was not trained for endless streams (its manifest has no 'streaming' section), "
+        + 'so its streams cannot change prompt');
+    }
+    if (typeof text !== 'string') throw new TypeError(`setPrompt() takes one prompt (a string), got ${typeof text}`);
+    checkTexts([text]);
+    this.pending = this.pending.then(async () => {
+      this.loop.setPrompt(await this.gen.backend.encodeText([text]));
+      this.text = text;
+      this.switches.push({ token: this.loop.count, text });
+    });
+    return this.pending;
+  }
+
+  /** End the stream (no more tokens are sampled). */
+  async close() {
+    await this.frames.return();
+  }
+
+  async* #frames() {
+    const { featureDim: D } = this.gen.dims, J3 = this.gen.skeleton.parents.length * 3;
+    let index = 0;
+    for await (const { features, joints, frames } of this.chunks) {
+      for (let i = 0; i < frames; i++) {
+        yield { index, time: index / this.gen.fps, features: features.slice(i * D, (i + 1) * D), joints: joints.slice(i * J3, (i + 1) * J3) };
+        index += 1;
+      }
+    }
+  }
+}

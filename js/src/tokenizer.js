@@ -1,0 +1,343 @@
+// The bundle's tokenizer.json (HuggingFace `tokenizers`), re-implemented for the pieces mogo bundles use.
+//
+// A prompt must reach the text encoder as the same ids Python's `tokenizers` gives, so each step follows
+// tokenizers' Rust code: added tokens ([CLS], [SEP], ... typed in the text) are split out first, the rest is
+// normalised (BertNormalizer: clean text, space around CJK ideographs, NFD + drop non-spacing marks,
+// per-character lowercase), pre-tokenised (BERT: split on whitespace, isolate punctuation), cut into
+// WordPiece sub-words (greedy longest match, `##` continuation, [UNK] for a word with no split or longer
+// than max_input_chars_per_word), cut to max_length minus the template's special tokens, wrapped in the
+// template ([CLS] A [SEP]) and padded on the right to the longest prompt of the batch
+// (runtime/mogo_runtime/text.py: TokenizerSettings, tokenize). Anything else the file may hold is refused
+// with the field named, rather than tokenised differently. test/tokenizer.test.mjs compares with Python on
+// over a thousand strings.
+
+import * as tables from './unicode-tables.js';
+
+const WHITESPACE = /\p{White_Space}/u;   // Rust's char::is_whitespace
+// tokenizers' own character classes (its Unicode tables are older than the engine's; see unicode-tables.js)
+const isOther = charClass(tables.OTHER);
+const isPunctuation = charClass(tables.PUNCTUATION);
+const isNonspacingMark = charClass(tables.NONSPACING_MARK);
+// the regex crate's Unicode \w, for the Whitespace pre-tokenizer's `\w+|[^\w\s]+`
+const WORD = '\\p{Alphabetic}\\p{M}\\p{Nd}\\p{Pc}\\p{Join_Control}';
+const WHITESPACE_PRETOKENS = new RegExp(`[${WORD}]+|[^${WORD}\\p{White_Space}]+`, 'gu');
+const CJK_RANGES = [[0x4e00, 0x9fff], [0x3400, 0x4dbf], [0x20000, 0x2a6df], [0x2a700, 0x2b73f], [0x2b740, 0x2b81f],
+  [0x2b920, 0x2ceaf], [0xf900, 0xfaff], [0x2f800, 0x2fa1f]];
+
+export class TokenizerError extends Error {}
+
+export class Tokenizer {
+  /**
+   * @param {object} json the parsed tokenizer.json
+   * @param {string} [source] the file, for error messages
+   */
+  constructor(json, source = 'tokenizer.json') {
+    const fail = (field, message) => {
+      throw new TokenizerError(`${source}: ${field}: ${message}`);
+    };
+    if (json === null || typeof json !== 'object') fail('(top level)', 'expected a JSON object');
+    this.source = source;
+    this.normalize = makeNormalizer(json.normalizer ?? null, fail);
+    this.preTokenize = makePreTokenizer(json.pre_tokenizer ?? null, fail);
+    this.model = makeModel(json.model, fail);
+    this.addedTokens = parseAddedTokens(json.added_tokens ?? [], fail);
+    this.template = makeTemplate(json.post_processor ?? null, fail);
+    Object.assign(this, parseSettings(json, source, this));
+  }
+
+  /** A Tokenizer from the text of a tokenizer.json file. */
+  static fromText(text, source) {
+    let json;
+    try {
+      json = JSON.parse(text);
+    } catch (e) {
+      throw new TokenizerError(`${source}: not valid JSON (${e.message})`);
+    }
+    return new Tokenizer(json, source);
+  }
+
+  tokenToId(token) {
+    return this.addedTokens.find((t) => t.content === token)?.id ?? this.model.vocab.get(token);
+  }
+
+  /** One prompt -> ids, truncated and wrapped in the template (no padding). */
+  encode(text) {
+    const ids = [];
+    for (const piece of splitAddedTokens(text, this.addedTokens.filter((t) => !t.normalized))) {
+      if (piece.id !== undefined) {
+        ids.push(piece.id);
+        continue;
+      }
+      const normalized = this.normalize(piece.text);
+      for (const inner of splitAddedTokens(normalized, this.addedTokens.filter((t) => t.normalized))) {
+        if (inner.id !== undefined) ids.push(inner.id);
+        else for (const word of this.preTokenize(inner.text)) ids.push(...this.model.tokenize(word));
+      }
+    }
+    return this.template(ids.slice(0, Math.max(0, this.maxLength - this.template.added)));
+  }
+
+  /**
+   * Prompts -> input_ids and attention_mask, both (N, S) int64 as BigInt64Array, S = the longest prompt
+   * (rounded up to pad_to_multiple_of when the file sets it), padded on the right.
+   */
+  encodeBatch(texts) {
+    const rows = texts.map((t) => this.encode(t));
+    let S = Math.max(...rows.map((r) => r.length));
+    if (this.padMultiple) S = Math.ceil(S / this.padMultiple) * this.padMultiple;
+    const inputIds = new BigInt64Array(rows.length * S).fill(BigInt(this.padId));
+    const attentionMask = new BigInt64Array(rows.length * S);
+    rows.forEach((ids, n) => {
+      ids.forEach((id, s) => {
+        inputIds[n * S + s] = BigInt(id);
+        attentionMask[n * S + s] = 1n;
+      });
+    });
+    return { inputIds, attentionMask, dims: [rows.length, S] };
+  }
+}
+
+/** TokenizerSettings.from_tokenizer: truncation on the right, padding to the longest of the batch. */
+function parseSettings(json, source, tok) {
+  const trunc = json.truncation ?? null, pad = json.padding ?? null;
+  if (trunc === null) {
+    throw new TokenizerError(`${source}: no truncation configured; long prompts would exceed the encoder's positions. `
+      + 'Re-export the text encoder (it writes truncation into tokenizer.json)');
+  }
+  if (pad === null || pad.strategy !== 'BatchLongest') {
+    throw new TokenizerError(`${source}: padding must be 'longest in batch', found ${JSON.stringify(pad)}; re-export the text encoder`);
+  }
+  if ((trunc.direction ?? 'Right') !== 'Right' || (pad.direction ?? 'Right') !== 'Right') {
+    throw new TokenizerError(`${source}: truncation and padding must both be on the right, found `
+      + `${JSON.stringify(trunc)} / ${JSON.stringify(pad)}`);
+  }
+  if (!Number.isInteger(trunc.max_length) || trunc.max_length < tok.template.added) {
+    throw new TokenizerError(`${source}: truncation.max_length: expected an integer >= ${tok.template.added}, got ${trunc.max_length}`);
+  }
+  if (!Number.isInteger(pad.pad_id)) throw new TokenizerError(`${source}: padding.pad_id: expected an integer`);
+  return { maxLength: trunc.max_length, padId: pad.pad_id, padToken: pad.pad_token, padMultiple: pad.pad_to_multiple_of ?? null };
+}
+
+/** A membership test for one character, from a table of space-separated hex code points and ranges. */
+function charClass(table) {
+  const bounds = table.split(' ').map((r) => r.split('-').map((h) => parseInt(h, 16)));
+  return (c) => {
+    const cp = c.codePointAt(0);
+    let lo = 0, hi = bounds.length - 1;
+    while (lo <= hi) {
+      const mid = (lo + hi) >> 1;
+      const [a, b = a] = bounds[mid];
+      if (cp < a) hi = mid - 1;
+      else if (cp > b) lo = mid + 1;
+      else return true;
+    }
+    return false;
+  };
+}
+
+// ---- added tokens -------------------------------------------------------------------------------------
+
+function parseAddedTokens(list, fail) {
+  if (!Array.isArray(list)) fail('added_tokens', 'expected a list');
+  return list.map((t, i) => {
+    if (typeof t?.content !== 'string' || !t.content || !Number.isInteger(t.id)) {
+      fail(`added_tokens[${i}]`, 'expected {id, content}');
+    }
+    for (const flag of ['single_word', 'lstrip', 'rstrip']) {
+      if (t[flag]) fail(`added_tokens[${i}].${flag}`, 'is true; this tokenizer supports plain added tokens only');
+    }
+    return { content: t.content, id: t.id, normalized: Boolean(t.normalized) };
+  });
+}
+
+/** Split `text` around occurrences of the tokens (leftmost, then longest): [{text} | {id}] pieces. */
+function splitAddedTokens(text, tokens) {
+  if (!tokens.length) return [{ text }];
+  const pieces = [];
+  let last = 0, at = 0;
+  while (at < text.length) {
+    let match = null;
+    for (const t of tokens) {
+      if (text.startsWith(t.content, at) && (!match || t.content.length > match.content.length)) match = t;
+    }
+    if (!match) {
+      at++;
+      continue;
+    }
+    if (at > last) pieces.push({ text: text.slice(last, at) });
+    pieces.push({ id: match.id });
+    at = last = at + match.content.length;
+  }
+  if (last < text.length) pieces.push({ text: text.slice(last) });
+  return pieces;
+}
+
+// ---- normalizers --------------------------------------------------------------------------------------
+
+function makeNormalizer(spec, fail) {
+  if (spec === null) return (s) => s;
+  switch (spec.type) {
+    case 'BertNormalizer': {
+      const lowercase = spec.lowercase ?? true;
+      const steps = [];
+      if (spec.clean_text ?? true) steps.push(cleanText);
+      if (spec.handle_chinese_chars ?? true) steps.push(spaceChineseChars);
+      if (spec.strip_accents ?? lowercase) steps.push((s) => stripAccents(s.normalize('NFD')));   // null: as lowercase
+      if (lowercase) steps.push(lowercaseChars);
+      return (s) => steps.reduce((acc, step) => step(acc), s);
+    }
+    case 'Lowercase': return lowercaseChars;
+    case 'StripAccents': return (s) => s.replace(/\p{M}/gu, '');   // every combining mark, unlike BERT's
+    case 'NFD': case 'NFC': case 'NFKD': case 'NFKC': return (s) => s.normalize(spec.type);
+    case 'Sequence': {
+      const parts = (spec.normalizers ?? []).map((n) => makeNormalizer(n, fail));
+      return (s) => parts.reduce((acc, n) => n(acc), s);
+    }
+    default: return fail('normalizer.type', `unsupported normalizer ${JSON.stringify(spec.type)}`);
+  }
+}
+
+function cleanText(s) {
+  let out = '';
+  for (const c of s) {
+    if (c === '\t' || c === '\n' || c === '\r') out += ' ';
+    else if (c === '\0' || c === '\ufffd' || isOther(c)) continue;
+    else out += WHITESPACE.test(c) ? ' ' : c;
+  }
+  return out;
+}
+
+function spaceChineseChars(s) {
+  let out = '';
+  for (const c of s) {
+    const cp = c.codePointAt(0);
+    out += CJK_RANGES.some(([lo, hi]) => cp >= lo && cp <= hi) ? ` ${c} ` : c;
+  }
+  return out;
+}
+
+function stripAccents(s) {
+  let out = '';
+  for (const c of s) if (!isNonspacingMark(c)) out += c;
+  return out;
+}
+
+// Rust lowercases character by character (no context: a final capital sigma becomes σ, not ς)
+function lowercaseChars(s) {
+  let out = '';
+  for (const c of s) out += c.toLowerCase();
+  return out;
+}
+
+// ---- pre-tokenizers -----------------------------------------------------------------------------------
+
+function makePreTokenizer(spec, fail) {
+  if (spec === null) return (s) => (s ? [s] : []);
+  switch (spec.type) {
+    case 'BertPreTokenizer': return bertPreTokenize;
+    case 'Whitespace': return (s) => s.match(WHITESPACE_PRETOKENS) ?? [];
+    case 'WhitespaceSplit': return (s) => splitWhitespace(s);
+    case 'Sequence': {
+      const parts = (spec.pretokenizers ?? []).map((p) => makePreTokenizer(p, fail));
+      return (s) => parts.reduce((words, p) => words.flatMap(p), [s]);
+    }
+    default: return fail('pre_tokenizer.type', `unsupported pre-tokenizer ${JSON.stringify(spec.type)}`);
+  }
+}
+
+function splitWhitespace(s) {
+  const words = [];
+  let word = '';
+  for (const c of s) {
+    if (WHITESPACE.test(c)) {
+      if (word) words.push(word);
+      word = '';
+    } else word += c;
+  }
+  if (word) words.push(word);
+  return words;
+}
+
+/** Split on whitespace (dropped), then isolate every punctuation character. */
+function bertPreTokenize(s) {
+  const words = [];
+  for (const chunk of splitWhitespace(s)) {
+    let word = '';
+    for (const c of chunk) {
+      if (isPunctuation(c)) {
+        if (word) words.push(word);
+        words.push(c);
+        word = '';
+      } else word += c;
+    }
+    if (word) words.push(word);
+  }
+  return words;
+}
+
+// ---- models -------------------------------------------------------------------------------------------
+
+function makeModel(spec, fail) {
+  if (spec === null || typeof spec !== 'object') return fail('model', 'missing');
+  if (spec.vocab === null || typeof spec.vocab !== 'object' || Array.isArray(spec.vocab)) {
+    return fail('model.vocab', 'expected an object of token -> id');
+  }
+  const vocab = new Map(Object.entries(spec.vocab));
+  const unk = vocab.get(spec.unk_token);
+  if (unk === undefined) fail('model.unk_token', `${JSON.stringify(spec.unk_token)} is not in the vocabulary`);
+  if (spec.type === 'WordLevel') return { vocab, tokenize: (word) => [vocab.get(word) ?? unk] };
+  if (spec.type !== 'WordPiece') return fail('model.type', `unsupported model ${JSON.stringify(spec.type)}`);
+  const prefix = spec.continuing_subword_prefix ?? '##';
+  const maxChars = spec.max_input_chars_per_word ?? 100;
+  return { vocab, tokenize: (word) => wordPiece(word, vocab, prefix, maxChars, unk) };
+}
+
+/** Greedy longest-match-first sub-words; [UNK] for the whole word when any part has no match. */
+function wordPiece(word, vocab, prefix, maxChars, unk) {
+  const chars = [...word];   // code points, as Rust's chars()
+  if (chars.length > maxChars) return [unk];
+  const ids = [];
+  let start = 0;
+  while (start < chars.length) {
+    let end = chars.length, id;
+    for (; end > start; end--) {
+      const piece = (start > 0 ? prefix : '') + chars.slice(start, end).join('');
+      id = vocab.get(piece);
+      if (id !== undefined) break;
+    }
+    if (id === undefined) return [unk];
+    ids.push(id);
+    start = end;
+  }
+  return ids;
+}
+
+// ---- post-processor -----------------------------------------------------------------------------------
+
+/** The single-sequence template, as a function of the content ids; `.added` = its special tokens. */
+function makeTemplate(spec, fail) {
+  let before = [], after = [];
+  if (spec === null) {
+    // no template: the ids as they are
+  } else if (spec.type === 'BertProcessing') {
+    before = [spec.cls?.[1]];
+    after = [spec.sep?.[1]];
+  } else if (spec.type === 'TemplateProcessing') {
+    const single = spec.single ?? [];
+    const seq = single.findIndex((p) => p.Sequence);
+    if (seq < 0 || single.filter((p) => p.Sequence).length !== 1) fail('post_processor.single', 'expected one Sequence');
+    const ids = (p) => {
+      const tok = spec.special_tokens?.[p.SpecialToken?.id];
+      if (!tok) fail('post_processor.single', `special token ${JSON.stringify(p.SpecialToken?.id)} is not in special_tokens`);
+      return tok.ids;
+    };
+    before = single.slice(0, seq).flatMap(ids);
+    after = single.slice(seq + 1).flatMap(ids);
+  } else {
+    fail('post_processor.type', `unsupported post-processor ${JSON.stringify(spec.type)}`);
+  }
+  if (![...before, ...after].every(Number.isInteger)) fail('post_processor', 'special token ids must be integers');
+  const template = (ids) => [...before, ...ids, ...after];
+  template.added = before.length + after.length;
+  return template;
+}

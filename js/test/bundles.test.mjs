@@ -1,0 +1,125 @@
+// The JavaScript runtime against the Python runtime on whole bundles: the same tokens for the same prompt,
+// seed and settings (greedy and sampled, guidance 1 and 2, clips, fixed lengths with restarts, batches,
+// timelines, a stream whose prompt changes), embeddings within 1e-5, joints within 1e-4 m.
+
+import test from 'node:test';
+import assert from 'node:assert/strict';
+import { MotionGenerator } from '../src/generator.js';
+import { SamplingConfig } from '../src/sampling.js';
+import { EndlessLoop } from '../src/loop.js';
+import { bundleReferences, maxAbsDiff, report } from './reference.mjs';
+
+const EMBEDDING_TOLERANCE = 1e-5;
+const JOINT_TOLERANCE = 1e-4;   // metres
+
+const sampling = (cfg) => (cfg === null ? null : new SamplingConfig({
+  temperature: cfg.temperature, topK: cfg.top_k, topP: cfg.top_p, guidance: cfg.guidance,
+}));
+const rows = (data, width) => Array.from({ length: data.length / width }, (_, i) => Array.from(data.slice(i * width, (i + 1) * width)));
+
+for (const ref of bundleReferences()) {
+  for (const [variant, want] of Object.entries(ref.variants)) {
+    test(`${ref.name} bundle, ${variant}: the JavaScript runtime gives the Python runtime's tokens and motions`, async (t) => {
+      const gen = await MotionGenerator.load(ref.path, { variant, threads: 1 });
+      const L = gen.dims.numLevels;
+      const stats = { tokens: 0, embedding: 0, logits: 0, features: 0, joints: 0, restarts: 0 };
+      const sameTokens = (got, expected, what) => {
+        assert.deepEqual(rows(got, L), expected, what);
+        stats.tokens += got.length;
+      };
+      const sameMotion = (m, expected, what) => {
+        sameTokens(m.tokens.data, expected.tokens, what);
+        stats.features = Math.max(stats.features, maxAbsDiff(m.features.data, expected.features));
+        stats.joints = Math.max(stats.joints, maxAbsDiff(m.joints.data, expected.joints));
+      };
+
+      await t.test('tokenizer ids, text embeddings and the first step logits', async () => {
+        const { inputIds, attentionMask } = gen.backend.tokenizer.encodeBatch(want.prompts);
+        assert.deepEqual(Array.from(inputIds, Number), want.input_ids.flat());
+        assert.deepEqual(Array.from(attentionMask, Number), want.attention_mask.flat());
+        const batched = await gen.backend.encodeText(want.prompts);
+        const single = [];
+        for (const p of want.prompts) single.push(...(await gen.backend.encodeText([p])));
+        stats.embedding = Math.max(maxAbsDiff(batched, want.embeddings), maxAbsDiff(single, want.embeddings_single));
+        assert.ok(stats.embedding <= EMBEDDING_TOLERANCE, `embeddings differ by ${stats.embedding}`);
+        const bos = new Int32Array(L).fill(gen.dims.bosId);
+        const { logits } = await gen.backend.step(Float32Array.from(single.slice(0, gen.dims.textDim)), bos, 1, gen.backend.emptyPast(1));
+        stats.logits = maxAbsDiff(logits, want.first_logits);
+        assert.ok(stats.logits <= 1e-4, `first step logits differ by ${stats.logits}`);
+      });
+
+      await t.test('single prompts: prompts x seeds x sampling settings, clips and fixed lengths', async () => {
+        for (const c of want.cases) {
+          const m = await gen.generate(c.text, { seed: BigInt(c.seed), seconds: c.seconds, sampling: sampling(c.sampling) });
+          sameTokens(m.tokens.data, c.tokens, `${c.text} seed ${c.seed} ${JSON.stringify(c.sampling)} ${c.seconds} s`);
+        }
+      });
+
+      await t.test('a batch of prompts in one loop', async () => {
+        const motions = await gen.generate(want.batch.texts, { seed: BigInt(want.batch.seed) });
+        motions.forEach((m, i) => sameTokens(m.tokens.data, want.batch.tokens[i], `batch prompt ${i}`));
+      });
+
+      await t.test('a batch of prompts with a fixed length (endless bundles: one EndlessLoop of several streams)', async () => {
+        const w = want.batch_fixed;
+        const motions = await gen.generate(w.texts, { seed: BigInt(w.seed), seconds: w.seconds, sampling: sampling(w.sampling) });
+        motions.forEach((m, i) => sameTokens(m.tokens.data, w.tokens[i], `fixed batch prompt ${i}`));
+      });
+
+      await t.test('features and joints of whole motions', async () => {
+        for (const c of want.motions) {
+          const m = await gen.generate(c.text, { seed: BigInt(c.seed), seconds: c.seconds, sampling: sampling(c.sampling) });
+          sameMotion(m, c, `${c.text} seed ${c.seed}`);
+        }
+      });
+
+      if (want.timeline) {
+        await t.test('an endless timeline: prompt switches, context rebuilds, restarts', async () => {
+          const { timeline, seconds, seed } = want.timeline;
+          sameMotion(await gen.generate(timeline, { seconds, seed: BigInt(seed) }), want.timeline, 'timeline');
+        });
+      }
+
+      if (want.loop) {
+        await t.test('an EndlessLoop of two streams, step by step, with its END restarts', async () => {
+          const w = want.loop;
+          const { window, refresh } = gen.bundle.manifest.streaming;
+          const loop = new EndlessLoop(gen.backend, await gen.backend.encodeText(w.texts), sampling(w.sampling),
+            w.seeds.map(BigInt), window, refresh);
+          for (const [step, expected] of w.tokens.entries()) {
+            assert.deepEqual(rows(await loop.step(), L), expected, `step ${step}`);
+            stats.tokens += expected.length * L;
+          }
+          assert.equal(loop.restarts, w.restarts);
+          stats.restarts = loop.restarts;
+        });
+      }
+
+      await t.test(want.timeline ? 'a stream whose prompt changes while its frames are read' : 'a clip streamed frame by frame', async () => {
+        const w = want.stream;
+        const switchAt = new Map(w.switch_at);
+        const s = await gen.stream(w.text, { seed: BigInt(w.seed), chunk: w.chunk });
+        const features = [], joints = [];
+        for await (const frame of s) {
+          features.push(...frame.features);
+          joints.push(...frame.joints);
+          if (switchAt.has(frame.index)) s.setPrompt(switchAt.get(frame.index));
+          if (frame.index + 1 === w.frames) await s.close();
+        }
+        assert.deepEqual(s.switches.map(({ token, text }) => [token, text]), w.switches);
+        stats.features = Math.max(stats.features, maxAbsDiff(features, w.features));
+        const err = maxAbsDiff(joints, w.joints);
+        stats.joints = Math.max(stats.joints, err);
+        assert.ok(err <= JOINT_TOLERANCE, `stream joints differ by ${err} m`);
+        assert.equal(joints.length, w.joints.length);
+        if (!gen.endless) assert.throws(() => s.setPrompt('a person waves'), /not trained for endless streams/);
+      });
+
+      report(`${ref.name}/${variant}: ${stats.tokens} token ids identical; max |diff| embeddings ${stats.embedding.toExponential(2)}, `
+        + `first logits ${stats.logits.toExponential(2)}, features ${stats.features.toExponential(2)}, joints ${stats.joints.toExponential(2)} m`
+        + (want.loop ? `; END restarts in the two-stream loop: ${stats.restarts}` : ''));
+      assert.ok(stats.joints <= JOINT_TOLERANCE, `joints differ by ${stats.joints} m`);
+      await gen.release();
+    });
+  }
+}

@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# The JavaScript runtime's tests, from a clean clone (`make test-js` runs this):
+#   1. install onnxruntime-node into js/node_modules if it is missing (--ignore-scripts: its postinstall
+#      downloads binaries the registry package already ships, and fails offline);
+#   2. build the toy bundles of tests/runtime/toy_bundle.py (with and without a streaming section) in a
+#      temporary folder, with the repository's venv;
+#   3. write what the Python runtime gives on them (js/test/make_reference.py);
+#   4. run `node --test`, which compares and prints the parity numbers (lines starting "parity:").
+#
+# Environment:
+#   PYTHON=...               the Python with mogo_runtime, onnxruntime, tokenizers (default .venv/bin/python)
+#   MOGO_JS_TINY=1           also train and export a `tiny` bundle (the real exporter's graphs; ~2 min on 2 cores)
+#   MOGO_JS_BUNDLES="a=DIR"  also compare on existing bundles, e.g. "base=bundles/base" (space-separated)
+#   MOGO_JS_KEEP=DIR         write bundles and references to DIR and keep them (default: a temporary folder)
+set -euo pipefail
+
+JS="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+ROOT="$(dirname "$JS")"
+PY="${PYTHON:-$ROOT/.venv/bin/python}"
+
+if [ ! -d "$JS/node_modules/onnxruntime-node" ]; then
+  (cd "$JS" && npm install --ignore-scripts --no-audit --no-fund)
+fi
+
+if [ -n "${MOGO_JS_KEEP:-}" ]; then
+  WORK="$MOGO_JS_KEEP"
+  mkdir -p "$WORK"
+else
+  WORK="$(mktemp -d)"
+  trap 'rm -rf "$WORK"' EXIT
+fi
+
+"$PY" - "$ROOT" "$WORK" <<'EOF'
+import sys
+from pathlib import Path
+
+import numpy as np
+
+root, work = Path(sys.argv[1]), Path(sys.argv[2])
+sys.path.insert(0, str(root / "tests" / "runtime"))
+from toy_bundle import build_toy_bundle  # noqa: E402
+
+mean = np.load(root.parent / "shared" / "fixtures" / "humanml3d" / "Mean.npy")
+build_toy_bundle(work / "toy", mean)
+build_toy_bundle(work / "toy-clips", mean, seed=1, streaming=False)
+print(f"toy bundles built in {work}")
+EOF
+
+BUNDLES=(--bundle "toy=$WORK/toy" --bundle "toy-clips=$WORK/toy-clips")
+if [ "${MOGO_JS_TINY:-0}" = "1" ]; then
+  if [ ! -f "$WORK/tiny/bundle/manifest.json" ]; then
+    # as tests/tiny_bundle.py builds it, into our own folder (its .cache is shared with pytest)
+    (cd "$ROOT" && export TQDM_DISABLE=1 &&
+      "$PY" -m mogo_export.cli dataset "$WORK/tiny/data" --clips 60 --seed 0 &&
+      "$PY" -m mogo_export.cli train --data "$WORK/tiny/data" --out "$WORK/tiny/checkpoints" --preset tiny &&
+      "$PY" -m mogo_export.cli export "$WORK/tiny/checkpoints" --out "$WORK/tiny/bundle")
+  fi
+  BUNDLES+=(--bundle "tiny=$WORK/tiny/bundle")
+fi
+for extra in ${MOGO_JS_BUNDLES:-}; do
+  BUNDLES+=(--bundle "$extra")
+done
+
+"$PY" "$JS/test/make_reference.py" --out "$WORK/reference" "${BUNDLES[@]}"
+cd "$JS"
+MOGO_JS_REFERENCE="$WORK/reference" node --test test/*.test.mjs
