@@ -63,4 +63,4 @@ done
 
 "$PY" "$JS/test/make_reference.py" --out "$WORK/reference" "${BUNDLES[@]}"
 cd "$JS"
-MOGO_JS_REFERENCE="$WORK/reference" node --test test/*.test.mjs
+MOGO_JS_REFERENCE="$WORK/reference" MOGO_JS_TOY="$WORK/toy" node --test test/*.test.mjs

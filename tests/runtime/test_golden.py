@@ -1,0 +1,33 @@
+"""The golden tokens (tests/golden/toy.json) from the Python runtime: the same toy bundle, prompts, seeds and
+settings must give exactly the stored tokens (Node and the browser are held to the same file)."""
+import importlib.util
+import json
+
+import pytest
+from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
+
+from conftest import ROOT
+from mogo_runtime import MotionGenerator
+
+spec = importlib.util.spec_from_file_location("make_golden", ROOT / "tests" / "golden" / "make_golden.py")
+golden_module = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(golden_module)
+GOLDEN = json.loads(golden_module.GOLDEN.read_text())
+
+
+@pytest.fixture(scope="module")
+def generators(toy_bundle):  # noqa: F811
+    # a different bundle is a different test: say so rather than report token mismatches
+    assert golden_module.bundle_hashes(toy_bundle) == GOLDEN["files"], \
+        "the toy bundle changed since tests/golden/toy.json was written: regenerate it (tests/golden/make_golden.py)"
+    return {v: MotionGenerator(toy_bundle, variant=v) for v in ("fp32", "int8")}
+
+
+def test_the_python_runtime_gives_the_golden_tokens(generators):
+    cases = GOLDEN["cases"]
+    assert len(cases) == len(golden_module.cases(["fp32", "int8"])) and len(cases) > 100
+    wrong = [(i, c["variant"], c["text"], c["seed"], c["sampling"]) for i, c in enumerate(cases)
+             if golden_module.run_case(generators, c) != c["tokens"]]
+    steps = sum(len(t) for c in cases for t in c["tokens"])
+    print(f"golden: {len(cases) - len(wrong)} of {len(cases)} cases ({steps} time steps) identical")
+    assert not wrong, f"{len(wrong)} cases differ, first: {wrong[:3]}"
