@@ -73,6 +73,19 @@ for (const ref of bundleReferences()) {
         }
       });
 
+      await t.test('the same motion on every platform: 20 prompts x 3 seeds, greedy and the sampling defaults', async () => {
+        let worst = 0;
+        for (const c of want.cross) {
+          const m = await gen.generate(c.text, { seed: BigInt(c.seed), sampling: sampling(c.sampling) });
+          sameTokens(m.tokens.data, c.tokens, `${c.text} seed ${c.seed} ${JSON.stringify(c.sampling)}`);
+          worst = Math.max(worst, maxAbsDiff(m.joints.data, c.joints));
+        }
+        assert.equal(want.cross.length, 20 * 3 * 2);
+        assert.ok(worst <= JOINT_TOLERANCE, `joints differ by ${worst} m`);
+        stats.joints = Math.max(stats.joints, worst);
+        report(`${ref.name}/${variant}: 20 prompts x 3 seeds x 2 samplings, tokens identical, joints max |diff| ${worst.toExponential(2)} m`);
+      });
+
       if (want.timeline) {
         await t.test('an endless timeline: prompt switches, context rebuilds, restarts', async () => {
           const { timeline, seconds, seed } = want.timeline;

@@ -32,6 +32,14 @@ from mogo_runtime.text import TokenizerSettings, configure_tokenizer, tokenize
 PROMPTS = ["a person walks forward", "a person jumps twice", "a person turns left and then kicks",
            "A person waves the right hand, then sits down!"]
 SEEDS = [0, 1, 2 ** 63 - 1]
+# "same seed, same motion on every platform": 20 prompts x 3 seeds, greedy and the bundle's sampling defaults
+CROSS_PROMPTS = ["a person walks forward", "a person jumps in place", "someone waves with the right hand",
+                 "a man kicks with his left leg", "a person squats down slowly", "a person turns left",
+                 "a person turns right", "a person runs forward", "a person sits down", "someone claps hands",
+                 "a person walks in a circle", "a person sidesteps to the left", "a person bows",
+                 "a person raises both arms", "a person punches forward", "a person walks backward",
+                 "someone stands still", "a person jumps forward", "a person waves with the left hand",
+                 "a person kicks with the right leg, then walks forward"]
 
 
 # ---- units: PCG64, sums, the sampler, the tokenizer -------------------------------------------------
@@ -217,6 +225,9 @@ def bundle_reference(path: Path, variant: str, long_seconds: float) -> dict:
     batch = gen.generate(PROMPTS, seed=9, seconds=seconds, sampling=_sampling(SAMPLINGS[3]))
     out["batch_fixed"] = {"texts": PROMPTS, "seed": "9", "seconds": seconds, "sampling": SAMPLINGS[3],
                           "tokens": [_tokens(m) for m in batch]}
+    out["cross"] = [{"text": text, "seed": str(seed), "sampling": cfg, **_motion(gen.generate(
+        text, seed=seed, sampling=_sampling(cfg)))}
+        for text in CROSS_PROMPTS for seed in SEEDS for cfg in (SAMPLINGS[0], None)]
     out["motions"] = [{"text": PROMPTS[1], "seed": "1", "sampling": None, "seconds": None,
                        **_motion(gen.generate(PROMPTS[1], seed=1))},
                       {"text": PROMPTS[0], "seed": "2", "sampling": SAMPLINGS[3], "seconds": 4.0,
