@@ -21,7 +21,7 @@ demo: $(STAMP)
 	$(PY) -m mogo_export.demo
 
 # The runtime's tests run in their own process with torch and mogo_export made unimportable.
-test: $(STAMP) test-export test-eval test-runtime test-js
+test: $(STAMP) test-export test-eval test-runtime test-js test-web
 
 test-export: $(STAMP)
 	$(PY) -m pytest -q tests/export
@@ -37,6 +37,25 @@ test-runtime: $(STAMP)
 # trained bundle (the real exporter's graphs; trained here, ~2 min). npm installs onnxruntime-node on first use.
 test-js: $(STAMP)
 	MOGO_JS_TINY=1 bash js/test/run.sh
+
+# The web page (web/): a bundle run in the browser (onnxruntime-web, three.js), no server-side inference. `make web`
+# installs web/'s npm packages and serves the repository root; open the URL it prints (?bundle=FOLDER picks the
+# bundle, default bundles/base, which `make demo` builds). `make test-web` drives the page in headless chromium
+# (Debian's; installed with apt-get if missing) and compares its tokens and files with the Python runtime's.
+.PHONY: web test-web
+PORT ?= 8000
+WEB_NPM := web/node_modules/.package-lock.json
+
+$(WEB_NPM): web/package.json web/package-lock.json
+	cd web && npm ci --ignore-scripts --no-audit --no-fund
+	touch $@
+
+web: $(WEB_NPM)
+	@test -f bundles/base/manifest.json || echo "make web: bundles/base is missing: \`make demo\` builds it; or open the page with ?bundle=FOLDER"
+	$(PYTHON) web/serve.py --port $(PORT)
+
+test-web: $(STAMP)
+	bash web/test/run.sh
 
 bench: $(STAMP)
 	$(PY) -m benchmarks.run

@@ -178,9 +178,11 @@ export class FrameStream {
     this.gen = gen;
     this.text = text;
     this.switches = [];                   // {token, text} of each prompt switch, when it took effect
-    this.pending = Promise.resolve();     // a prompt switch still being encoded
+    this.pending = Promise.resolve();     // prompt switches still being encoded
+    this.queued = [];                     // encoded switches waiting for the step in flight to finish
+    this.busy = false;                    // a step (or a chunk of them) is running
     this.loop = task.streaming !== null ? task.loop(emb, [seed]) : null;
-    this.chunks = task.stream(emb, seed, chunk, this.loop, () => this.pending);
+    this.chunks = task.stream(emb, seed, chunk, this.loop, () => this.#beforeStep());
     this.frames = this.#frames();
   }
 
@@ -212,12 +214,26 @@ export class FrameStream {
     }
     if (typeof text !== 'string') throw new TypeError(`setPrompt() takes one prompt (a string), got ${typeof text}`);
     checkTexts([text]);
+    // The loop must not change while a step is running (the step would write its context back over the new
+    // prompt's): an embedding that arrives then waits for #beforeStep, between two steps.
     this.pending = this.pending.then(async () => {
-      this.loop.setPrompt(await this.gen.backend.encodeText([text]));
-      this.text = text;
-      this.switches.push({ token: this.loop.count, text });
+      this.queued.push({ emb: await this.gen.backend.encodeText([text]), text });
+      if (!this.busy) this.#apply();
     });
     return this.pending;
+  }
+
+  #apply() {
+    for (const { emb, text } of this.queued.splice(0)) {
+      this.loop.setPrompt(emb);
+      this.text = text;
+      this.switches.push({ token: this.loop.count, text });
+    }
+  }
+
+  async #beforeStep() {
+    await this.pending;
+    this.#apply();
   }
 
   /** End the stream (no more tokens are sampled). */
@@ -228,11 +244,21 @@ export class FrameStream {
   async* #frames() {
     const { featureDim: D } = this.gen.dims, J3 = this.gen.skeleton.parents.length * 3;
     let index = 0;
-    for await (const { features, joints, frames } of this.chunks) {
-      for (let i = 0; i < frames; i++) {
-        yield { index, time: index / this.gen.fps, features: features.slice(i * D, (i + 1) * D), joints: joints.slice(i * J3, (i + 1) * J3) };
-        index += 1;
+    try {
+      for (;;) {
+        this.busy = true;                 // from here until the chunk's frames are out, steps may be running
+        const next = await this.chunks.next();
+        this.busy = false;
+        if (next.done) return;
+        const { features, joints, frames } = next.value;
+        for (let i = 0; i < frames; i++) {
+          yield { index, time: index / this.gen.fps, features: features.slice(i * D, (i + 1) * D), joints: joints.slice(i * J3, (i + 1) * J3) };
+          index += 1;
+        }
       }
+    } finally {
+      this.busy = false;
+      await this.chunks.return();         // closing the stream ends its token loop too
     }
   }
 }

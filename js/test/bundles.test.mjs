@@ -93,6 +93,36 @@ for (const ref of bundleReferences()) {
         });
       }
 
+      if (want.timeline) {
+        await t.test('a prompt switch asked for while a step is running lands cleanly at the next token', async () => {
+          const [first, second] = [want.prompts[0], want.prompts[1]];
+          const perToken = gen.dims.downsample / gen.fps, frames = 40 * gen.dims.downsample;
+          const s = await gen.stream(first, { seed: 5n, chunk: 1 });
+          // the switch is asked for, and its text encoded, while the 30th step call is still running
+          const step = gen.backend.step;
+          let calls = 0;
+          gen.backend.step = async (...args) => {
+            const out = await step.apply(gen.backend, args);
+            if (++calls === 30) await s.setPrompt(second);
+            return out;
+          };
+          const joints = [];
+          try {
+            for await (const frame of s) {
+              joints.push(...frame.joints);
+              if (frame.index + 1 === frames) break;
+            }
+          } finally {
+            delete gen.backend.step;
+          }
+          assert.equal(s.switches.length, 1);
+          const at = s.switches[0].token;
+          const want2 = await gen.generate([[first, 0], [second, at * perToken]], { seconds: frames / gen.fps, seed: 5n });
+          const err = maxAbsDiff(joints, Array.from(want2.joints.data));
+          assert.ok(err <= 1e-5, `the stream is not the timeline switching at token ${at}: joints differ by ${err} m`);
+        });
+      }
+
       if (want.loop) {
         await t.test('an EndlessLoop of two streams, step by step, with its END restarts', async () => {
           const w = want.loop;

@@ -1,0 +1,460 @@
+// The page: pick a bundle variant, type a prompt, watch the skeleton move as frames stream in, change the prompt
+// mid-stream, download BVH / JSON. Generation runs in worker.js; this module draws (viewer.js) and keeps the
+// motion on screen for the downloads.
+//
+// URL parameters: bundle (a folder relative to the repository root, or an absolute URL; default bundles/base),
+// variant (default int8 where offered, else fp32), threads (onnxruntime-web threads; more than 1 only where the
+// page is cross-origin isolated), prompt, seed.
+//
+// window.mogoPage is what the browser test reads (web/test/page.test.mjs): the motion on screen with its tokens,
+// and the timings.
+
+import { Bundle, urlLoader } from '../js/src/index.js';
+import { jointsToBvhText } from './bvh.js';
+import { SkeletonViewer } from './viewer.js';
+
+const JSON_DECIMALS = 4;   // as runtime/mogo_runtime/motion.py writes .json files: 0.1 mm
+const AHEAD_SECONDS = 1;   // how far a stream is decoded ahead of what is shown: a new prompt shows within this
+// Variants this runtime is known to run (its tests cover them, js/test): fp32, and int8 made by dynamic
+// quantization (run one row per call, runtime/mogo_runtime/engine.py). Any other variant (e.g. `portable`, whose
+// step graph has a fixed-size cache and a `position` input) is offered only once the worker has loaded it and
+// generated a token with it here; otherwise the page names it and says why.
+const KNOWN_VARIANTS = new Set(['fp32', 'int8']);
+const KNOWN_QUANTIZATION = new Set(['onnxruntime.quantize_dynamic', 'dynamic']);
+
+const $ = (id) => document.getElementById(id);
+const params = new URLSearchParams(location.search);
+const root = new URL('../', import.meta.url);
+const bundleParam = params.get('bundle') || 'bundles/base';
+const bundleUrl = new URL(bundleParam.endsWith('/') ? bundleParam : `${bundleParam}/`, root).href;
+const isolated = globalThis.crossOriginIsolated === true;
+const threadsAsked = Math.max(1, Number.parseInt(params.get('threads') || '1', 10) || 1);
+const threads = isolated ? Math.min(threadsAsked, navigator.hardwareConcurrency || 1) : 1;
+
+const page = {
+  manifest: null,
+  variant: null,
+  endless: false,
+  busy: null,          // 'loading' | 'generating' | 'streaming' | null
+  motion: null,        // what is on screen: {kind, texts, seed, variant, fps, tokens, levels, switches, frames[]}
+  runId: 0,
+  shows: 0,            // motions put on screen so far
+  stats: {},
+  errors: [],
+  renderFps: 0,
+};
+const worker = new Worker(new URL('./worker.js', import.meta.url), { type: 'module' });
+let viewer = null;
+const waiting = new Map();   // message id -> {resolve, reject}, for generate and load
+
+window.mogoPage = {
+  ready: null,
+  get state() {
+    return { variant: page.variant, busy: page.busy, endless: page.endless, errors: page.errors.slice(),
+      variants: [...$('variant').options].map((o) => o.value), frames: page.motion?.frames.length ?? 0,
+      shown: viewer?.player.index ?? -1, shows: page.shows, stats: { ...page.stats }, renderFps: page.renderFps, threads, isolated };
+  },
+  /** The motion on screen: tokens (clips), the joints of every frame (flat, as the runtime gave them). */
+  motion() {
+    const m = page.motion;
+    if (!m) return null;
+    return { kind: m.kind, texts: m.texts, seed: String(m.seed), variant: m.variant, fps: m.fps,
+      tokens: m.tokens ? Array.from(m.tokens) : null, levels: m.levels, switches: m.switches,
+      joints: m.frames.flatMap((f) => Array.from(f)), numFrames: m.frames.length };
+  },
+};
+
+// ---- loading --------------------------------------------------------------------------------------------
+
+async function loadBundle() {
+  setBusy('loading');
+  status(`reading ${bundleUrl}manifest.json`);
+  let bundle;
+  try {
+    bundle = await Bundle.load(urlLoader(bundleUrl), { verifyHashes: false });
+  } catch (e) {
+    throw new Error(`${e.message}\n\nPick a bundle with ?bundle=FOLDER (relative to the repository root); `
+      + '`make demo` builds bundles/base.');
+  }
+  const m = bundle.manifest;
+  page.manifest = m;
+  page.endless = m.streaming !== null;
+  const perToken = m.model.downsample / m.model.fps;
+  $('bundle-info').textContent = `${bundleUrl.replace(root.href, '')}: ${m.skeleton.name} skeleton, ${m.model.numLevels}`
+    + ` levels x ${m.model.codebookSize} codes, ${m.model.fps} fps, ${perToken} s per token, `
+    + `${page.endless ? 'endless streams (prompt changes mid-stream)' : `clips up to ${m.model.maxSeconds} s`}; `
+    + `sampling ${describeSampling(m.samplingDefaults)}`;
+  $('stream').textContent = page.endless ? 'Stream (endless)' : 'Stream';
+
+  const known = Object.keys(m.variants).filter((v) => isKnown(m, v));
+  const others = Object.keys(m.variants).filter((v) => !known.includes(v));
+  const wanted = params.get('variant');
+  const offered = wanted && others.includes(wanted) ? [...known, wanted] : known;   // asked for by name: tried
+  $('variant').replaceChildren(...offered.map((v) => new Option(v, v)));
+
+  viewer = new SkeletonViewer($('view'), m.skeleton);
+  requestAnimationFrame(draw);
+  const variant = offered.includes(wanted) ? wanted : offered.includes('int8') ? 'int8' : offered[0];
+  await loadVariant(variant);
+  await probeVariants(others.filter((v) => !offered.includes(v)));
+}
+
+function isKnown(manifest, variant) {
+  return KNOWN_VARIANTS.has(variant)
+    && Object.values(manifest.variants[variant]).every((g) => !g.quantization || KNOWN_QUANTIZATION.has(g.quantization.method));
+}
+
+/** Offer each variant of unknown make that loads and generates a token here; name the others with the reason. */
+async function probeVariants(variants) {
+  const notOffered = [];
+  const note = (extra) => { $('variant-note').textContent = [extra, notOffered.length ? `not offered: ${notOffered.join('; ')}` : ''].filter(Boolean).join(' '); };
+  for (const v of variants) {
+    note(`checking whether this runtime runs the ${v} variant...`);
+    try {
+      await ask({ type: 'probe', bundleUrl, variant: v, threads });
+      $('variant').append(new Option(v, v));
+    } catch (e) {
+      notOffered.push(`${v} (${e.message})`);
+    }
+  }
+  note('');
+}
+
+async function loadVariant(variant) {
+  stopStream();
+  setBusy('loading');
+  $('variant').value = variant;
+  const t0 = performance.now();
+  const wasmPaths = new URL('./node_modules/onnxruntime-web/dist/', import.meta.url).href;
+  try {
+    await ask({ type: 'load', bundleUrl, variant, threads, wasmPaths });
+  } catch (e) {
+    page.variant = null;
+    setBusy(null);
+    throw e;
+  }
+  page.variant = variant;
+  page.stats.loadMs = performance.now() - t0;
+  status(`${variant} loaded in ${(page.stats.loadMs / 1000).toFixed(1)} s (onnxruntime-web wasm, ${threads} thread`
+    + `${threads > 1 ? 's' : ''}${threadsAsked > threads ? `; ${threadsAsked} asked, the page is not cross-origin isolated` : ''})`);
+  setBusy(null);
+}
+
+/** Send a command that answers once (load, generate): resolves with the answer, rejects on an error. */
+function ask(msg) {
+  const id = ++page.runId;
+  return new Promise((resolve, reject) => {
+    waiting.set(id, { resolve, reject });
+    worker.postMessage({ ...msg, id });
+  });
+}
+
+// ---- generating -----------------------------------------------------------------------------------------
+
+function readInputs() {
+  const text = $('prompt').value;
+  if (!text.trim()) throw new Error("type a prompt first, e.g. 'a person walks forward and then jumps'");
+  const seedText = $('seed').value.trim() || '0';
+  if (!/^\d+$/.test(seedText)) throw new Error(`the seed must be a whole number >= 0, got ${JSON.stringify(seedText)}`);
+  const seed = BigInt(seedText);
+  const secondsText = $('seconds').value.trim();
+  const seconds = secondsText ? Number(secondsText) : null;
+  if (seconds !== null && !(seconds > 0)) throw new Error(`seconds must be a positive number, or empty (the model decides)`);
+  return { text, seed, seconds };
+}
+
+async function generateClip() {
+  const { text, seed, seconds } = readInputs();
+  stopStream();
+  setBusy('generating');
+  status(`generating "${text}" (seed ${seed})...`);
+  const t0 = performance.now();
+  try {
+    const clip = await ask({ type: 'generate', text, seed, seconds });
+    const J3 = page.manifest.skeleton.parents.length * 3;
+    const frames = Array.from({ length: clip.numFrames }, (_, i) => clip.joints.subarray(i * J3, (i + 1) * J3));
+    show({ kind: 'clip', texts: [text], seed, variant: page.variant, fps: clip.fps, tokens: clip.tokens,
+      levels: clip.levels, switches: [], frames }, false);
+    const ms = performance.now() - t0;
+    page.stats.clip = { ms, frames: clip.numFrames, seconds: clip.numFrames / clip.fps, workerMs: clip.ms,
+      tokens: clip.tokens.length / clip.levels };
+    status(`"${text}": ${page.stats.clip.seconds.toFixed(1)} s of motion (${page.stats.clip.tokens} tokens) in `
+      + `${(ms / 1000).toFixed(2)} s, ${(clip.numFrames / (ms / 1000)).toFixed(0)} frames/s`);
+  } finally {
+    setBusy(null);
+  }
+}
+
+function startStream() {
+  const { text, seed } = readInputs();
+  stopStream();
+  const id = ++page.runId;
+  const fps = page.manifest.model.fps;
+  show({ kind: 'stream', texts: [text], seed, variant: page.variant, fps, tokens: null, levels: page.manifest.model.numLevels,
+    switches: [], frames: [] }, true);
+  page.stream = { id, t0: performance.now(), firstMs: null, busyMs: 0, tokens: 0 };
+  page.stats.stream = null;
+  setBusy('streaming');
+  status(`streaming "${text}" (seed ${seed})${page.endless ? ': type a new prompt and press Enter or "Set prompt"' : ''}`);
+  worker.postMessage({ type: 'stream', id, text, seed, ahead: Math.round(AHEAD_SECONDS * fps) });
+}
+
+function setPrompt() {
+  const text = $('prompt').value;
+  if (!page.stream || !text.trim()) return;
+  worker.postMessage({ type: 'setPrompt', id: page.stream.id, text });
+  status(`switching to "${text}" at the next token`);
+}
+
+function stopStream() {
+  if (!page.stream) return;
+  worker.postMessage({ type: 'stop', id: page.stream.id });
+  page.stream = null;
+  viewer.player.live = false;   // what was received plays as a clip
+  if (page.busy === 'streaming') setBusy(null);
+}
+
+/** Put a motion on screen (a clip whole, or a stream that frames will be pushed to). */
+function show(motion, live) {
+  page.motion = motion;
+  page.shows += 1;
+  viewer.player.start({ fps: motion.fps, live });
+  for (const f of motion.frames) viewer.player.push(f);
+  viewer.player.playing = true;
+  $('play').textContent = 'Pause';
+}
+
+worker.onerror = (event) => {   // the worker's script did not load or threw outside a command
+  const e = new Error(`the generator's worker failed: ${event.message || 'its script could not be loaded'}`);
+  for (const { reject } of waiting.values()) reject(e);
+  waiting.clear();
+  fail(e);
+};
+
+worker.onmessage = ({ data: msg }) => {
+  const pending = waiting.get(msg.id);
+  switch (msg.type) {
+    case 'status':
+      status(msg.text);
+      break;
+    case 'progress':
+      $('progress').value = msg.step / msg.limit;
+      break;
+    case 'loaded':
+    case 'probed':
+    case 'clip':
+      waiting.delete(msg.id);
+      pending?.resolve(msg);
+      break;
+    case 'frames': {
+      const s = page.stream;
+      if (!s || s.id !== msg.id) break;
+      if (s.firstMs === null) s.firstMs = performance.now() - s.t0;
+      const J3 = page.manifest.skeleton.parents.length * 3;
+      for (let i = 0; i < msg.count; i++) {
+        const f = msg.joints.subarray(i * J3, (i + 1) * J3);
+        page.motion.frames.push(f);
+        viewer.player.push(f);
+      }
+      if (msg.start === 0) setBusy(page.busy);   // the downloads have something to write now
+      s.busyMs = msg.busyMs;
+      s.tokens = msg.tokens;
+      const frames = page.motion.frames.length;
+      page.stats.stream = { firstFrameMs: s.firstMs, frames, tokens: s.tokens, busyMs: s.busyMs,
+        generatedFps: frames / (s.busyMs / 1000), stalls: viewer.player.stalls };
+      break;
+    }
+    case 'switched':
+      if (page.stream?.id === msg.id) {
+        page.motion.switches.push({ token: msg.token, text: msg.text, frame: msg.frame });
+        page.motion.texts.push(msg.text);
+        status(`now following "${msg.text}" (from token ${msg.token}, frame ${msg.frame})`);
+      }
+      break;
+    case 'end':
+      if (page.stream?.id === msg.id) {
+        page.stream = null;
+        viewer.player.live = false;
+        setBusy(null);
+        status(`the stream ended after ${msg.frames} frames (the model ended the clip)`);
+      }
+      break;
+    case 'error':
+      waiting.delete(msg.id);
+      if (pending) pending.reject(new Error(msg.message));
+      else fail(new Error(msg.message));
+      if (page.stream?.id === msg.id) {
+        page.stream = null;
+        setBusy(null);
+      }
+      break;
+    default:
+      break;
+  }
+};
+
+// ---- drawing --------------------------------------------------------------------------------------------
+
+let lastTime = null, frameCount = 0, fpsSince = null, lastPlayed = -1;
+
+function draw(now) {
+  const dt = lastTime === null ? 0 : Math.min((now - lastTime) / 1000, 0.25);
+  lastTime = now;
+  viewer.follow = $('follow').checked;
+  viewer.player.loop = $('loop').checked;
+  viewer.frame(dt);
+  const p = viewer.player;
+  if (page.stream && p.index !== lastPlayed) {   // tells the worker how far to decode ahead
+    lastPlayed = p.index;
+    worker.postMessage({ type: 'played', id: page.stream.id, frame: p.index });
+  }
+  frameCount += 1;
+  if (fpsSince === null) fpsSince = now;
+  if (now - fpsSince >= 1000) {
+    page.renderFps = (frameCount * 1000) / (now - fpsSince);
+    frameCount = 0;
+    fpsSince = now;
+  }
+  updateReadout();
+  requestAnimationFrame(draw);
+}
+
+function updateReadout() {
+  const p = viewer.player, m = page.motion;
+  $('time').textContent = m ? `${(p.index / p.fps).toFixed(2)} s / ${(p.frames.length / p.fps).toFixed(2)} s`
+    + ` (frame ${p.index + 1} of ${p.frames.length})` : '';
+  const s = page.stats.stream, lines = [];
+  if (s) {
+    lines.push(`first frame ${s.firstFrameMs.toFixed(0)} ms`, `decoded ${s.generatedFps.toFixed(0)} frames/s `
+      + `(${(s.generatedFps / p.fps).toFixed(1)}x real time)`, `${s.tokens} tokens`);
+  }
+  lines.push(`drawing ${page.renderFps.toFixed(0)} fps`);
+  $('stats').textContent = lines.join(' · ');
+}
+
+// ---- files ----------------------------------------------------------------------------------------------
+
+function joinedJoints() {
+  const m = page.motion;
+  const J3 = page.manifest.skeleton.parents.length * 3;
+  const out = new Float32Array(m.frames.length * J3);
+  m.frames.forEach((f, i) => out.set(f, i * J3));
+  return out;
+}
+
+function bvhText() {
+  const m = page.motion;
+  return jointsToBvhText(joinedJoints(), m.frames.length, page.manifest.skeleton, { fps: m.fps });
+}
+
+/** The `.json` the Python runtime writes (Motion.to_dict), plus what made it: variant, tokens, prompt switches. */
+function jsonText() {
+  const m = page.motion, sk = page.manifest.skeleton;
+  const J3 = sk.parents.length * 3;
+  const frames = m.frames.map((f) => Array.from({ length: J3 / 3 }, (_, j) => [0, 1, 2].map((k) => roundTo(f[3 * j + k], JSON_DECIMALS))));
+  const data = {
+    text: m.texts.join(' | '), aligned_text: null, seed: '@SEED@', fps: m.fps, num_frames: m.frames.length,
+    skeleton: sk, frames,
+    variant: m.variant, bundle: bundleParam,
+    tokens: m.tokens ? Array.from({ length: m.tokens.length / m.levels }, (_, t) => Array.from(m.tokens.subarray(t * m.levels, (t + 1) * m.levels))) : null,
+    prompts: [{ text: m.texts[0], token: 0, frame: 0 }, ...m.switches],
+  };
+  // the seed is a BigInt: written as JSON's integer (no prompt can hold this text unescaped)
+  return JSON.stringify(data).replace('"seed":"@SEED@"', `"seed":${m.seed}`);
+}
+
+/** numpy's round(x, decimals): x * 10**d rounded half to even, divided back. */
+function roundTo(x, decimals) {
+  const f = 10 ** decimals, y = x * f, r = Math.round(y);
+  return (Math.abs(y % 1) === 0.5 && r % 2 !== 0 ? r - 1 : r) / f;
+}
+
+function download(text, name, type) {
+  const url = URL.createObjectURL(new Blob([text], { type }));
+  const a = Object.assign(document.createElement('a'), { href: url, download: name });
+  document.body.append(a);
+  a.click();
+  a.remove();
+  setTimeout(() => URL.revokeObjectURL(url), 10_000);
+}
+
+function fileStem() {
+  const m = page.motion;
+  const words = m.texts[0].toLowerCase().replace(/[^a-z0-9]+/g, '_').replace(/^_|_$/g, '').slice(0, 48) || 'motion';
+  return `${words}_seed${m.seed}${m.kind === 'stream' ? '_stream' : ''}`;
+}
+
+// ---- controls -------------------------------------------------------------------------------------------
+
+function setBusy(what) {
+  page.busy = what;
+  const loaded = page.variant !== null && what !== 'loading';
+  $('generate').disabled = !loaded || what === 'generating';
+  $('stream').disabled = !loaded || what === 'generating';
+  $('set-prompt').disabled = what !== 'streaming' || !page.endless;
+  $('stop').disabled = what !== 'streaming';
+  $('variant').disabled = what === 'loading' || what === 'generating';
+  const hasMotion = () => page.motion && page.motion.frames.length > 0;
+  $('download-bvh').disabled = !hasMotion();
+  $('download-json').disabled = !hasMotion();
+  $('progress').hidden = what !== 'generating';
+  if (what === 'generating') $('progress').value = 0;
+  document.body.dataset.busy = what ?? '';
+}
+
+function status(text) {
+  $('status').textContent = text;
+  $('status').classList.remove('error');
+}
+
+function fail(e) {
+  console.error(e);
+  page.errors.push(e.message);
+  $('status').textContent = e.message;
+  $('status').classList.add('error');
+}
+
+const guard = (fn) => async () => {
+  try {
+    await fn();
+  } catch (e) {
+    fail(e);
+  }
+  setBusy(page.busy);
+};
+
+function describeSampling(s) {
+  const parts = [s.temperature === 0 ? 'greedy' : `temperature ${s.temperature}`];
+  if (s.topK) parts.push(`top_k ${s.topK}`);
+  if (s.topP !== null && s.topP !== undefined) parts.push(`top_p ${s.topP}`);
+  if (s.guidance !== 1) parts.push(`guidance ${s.guidance}`);
+  return parts.join(', ');
+}
+
+$('generate').onclick = guard(generateClip);
+$('stream').onclick = guard(startStream);
+$('set-prompt').onclick = guard(setPrompt);
+$('stop').onclick = guard(stopStream);
+$('variant').onchange = guard(() => loadVariant($('variant').value));
+$('play').onclick = () => {
+  if (!viewer) return;
+  viewer.player.playing = !viewer.player.playing;
+  $('play').textContent = viewer.player.playing ? 'Pause' : 'Play';
+};
+$('download-bvh').onclick = guard(() => download(bvhText(), `${fileStem()}.bvh`, 'text/plain'));
+$('download-json').onclick = guard(() => download(jsonText(), `${fileStem()}.json`, 'application/json'));
+$('prompt').addEventListener('keydown', (e) => {
+  if (e.key !== 'Enter') return;
+  e.preventDefault();
+  if (page.busy === 'streaming' && page.endless) guard(setPrompt)();
+  else if (!page.busy) guard(generateClip)();
+});
+
+if (params.get('prompt')) $('prompt').value = params.get('prompt');
+if (params.get('seed')) $('seed').value = params.get('seed');
+setBusy('loading');
+window.mogoPage.ready = loadBundle().then(() => true, (e) => {
+  fail(e);
+  setBusy(null);
+  return false;
+});

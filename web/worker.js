@@ -1,0 +1,210 @@
+// The generator off the page's main thread: onnxruntime-web (wasm) and the JavaScript runtime (js/src) run here,
+// so drawing and the orbit camera never wait for a step. The page (app.js) sends commands and receives frames:
+//
+//   page -> worker  {type: 'load', bundleUrl, variant, threads, wasmPaths}
+//                   {type: 'probe', id, bundleUrl, variant, threads}   does this runtime run that variant?
+//                   {type: 'generate', id, text, seed, seconds}        one clip, tokens and all frames at the end
+//                   {type: 'stream', id, text, seed, ahead}            frames as they are decoded
+//                   {type: 'played', id, frame}                        the page shows `frame`: produce up to frame + ahead
+//                   {type: 'setPrompt', id, text}                      the stream follows `text` from its next token
+//                   {type: 'stop', id}
+//   worker -> page  {type: 'status', text} {type: 'loaded', id, ...} {type: 'probed', id, variant}
+//                   {type: 'progress', id, step, limit}
+//                   {type: 'clip', id, ...} {type: 'frames', id, start, joints, ...} {type: 'switched', id, ...}
+//                   {type: 'end', id} {type: 'error', id, message}
+//
+// A prompt switch is applied between two frames of the stream, never while a step is in flight: the stream's
+// setPrompt re-arms the context when its text embedding arrives, and a step already running would overwrite that.
+
+import * as ort from './node_modules/onnxruntime-web/dist/ort.wasm.min.mjs';
+import { MotionGenerator, urlLoader } from '../js/src/index.js';
+
+let gen = null;
+let run = null;   // the stream being produced: {id, stream, played, ahead, queued: [texts], stopped, wake}
+
+// Commands that use the sessions run one after another (a new one first stops the stream); the small ones act at
+// once, between two frames of the stream.
+let chain = Promise.resolve();
+
+self.onmessage = (event) => {
+  const msg = event.data;
+  const fail = (e) => self.postMessage({ type: 'error', id: msg.id, message: describe(e) });
+  if (Object.hasOwn(NOW, msg.type)) {
+    NOW[msg.type](msg);
+  } else if (Object.hasOwn(QUEUED, msg.type)) {
+    stopStream();
+    chain = chain.then(() => QUEUED[msg.type](msg)).catch(fail);
+  } else {
+    fail(new Error(`unknown command ${msg.type}`));
+  }
+};
+
+const QUEUED = {
+  async load({ id, bundleUrl, variant, threads, wasmPaths }) {
+    if (gen) await gen.release();
+    gen = null;
+    ort.env.wasm.wasmPaths = wasmPaths;
+    ort.env.wasm.numThreads = threads;
+    const loader = urlLoader(bundleUrl, progressFetch);
+    gen = await MotionGenerator.load(loader, { variant, threads, ort, providers: ['wasm'] });
+    self.postMessage({ type: 'loaded', id, variant, endless: gen.endless, threads });
+  },
+
+  /** Whether this runtime runs a variant: load it beside the current one and generate one token. */
+  async probe({ id, bundleUrl, variant, threads }) {
+    const probe = await MotionGenerator.load(urlLoader(bundleUrl), { variant, threads, ort, providers: ['wasm'] });
+    try {
+      await probe.generate('a person walks forward', { seconds: probe.dims.downsample / probe.fps, seed: 0 });
+    } finally {
+      await probe.release();
+    }
+    self.postMessage({ type: 'probed', id, variant });
+  },
+
+  async generate({ id, text, seed, seconds }) {
+    const t0 = performance.now();
+    const motion = await gen.generate(text, { seed, seconds,
+      onProgress: (step, limit) => self.postMessage({ type: 'progress', id, step, limit }) });
+    const ms = performance.now() - t0;
+    const joints = motion.joints.data, tokens = motion.tokens.data;
+    self.postMessage({ type: 'clip', id, text, seed, fps: motion.fps, numFrames: motion.numFrames, ms,
+      tokens, levels: motion.tokens.dims[1], joints }, [joints.buffer, tokens.buffer]);
+  },
+
+  async stream({ id, text, seed, ahead }) {
+    const stream = await gen.stream(text, { seed });
+    run = { id, stream, played: -1, ahead, queued: [], stopped: false, wake: null };
+    await produce(run);
+  },
+};
+
+const NOW = {
+  played({ id, frame }) {
+    if (run && run.id === id) {
+      run.played = Math.max(run.played, frame);
+      wake(run);
+    }
+  },
+
+  setPrompt({ id, text }) {
+    if (run && run.id === id) {
+      run.queued.push(text);
+      wake(run);
+    }
+  },
+
+  stop({ id }) {
+    if (run && run.id === id) stopStream();
+  },
+};
+
+/** Pull frames while the page is less than `ahead` frames from the newest; switch prompts between frames. */
+async function produce(me) {
+  const J3 = gen.skeleton.parents.length * 3, fps = gen.fps;
+  const it = me.stream[Symbol.asyncIterator]();
+  let produced = 0, busyMs = 0;
+  const batch = [];
+  const flush = () => {
+    if (!batch.length) return;
+    const joints = new Float32Array(batch.length * J3);
+    batch.forEach((f, i) => joints.set(f, i * J3));
+    self.postMessage({ type: 'frames', id: me.id, start: produced - batch.length, joints, count: batch.length,
+      tokens: me.stream.tokens, busyMs, fps }, [joints.buffer]);
+    batch.length = 0;
+  };
+  try {
+    while (!me.stopped) {
+      while (me.queued.length) {   // the generator is suspended between two frames here: no step in flight
+        const text = me.queued.shift();
+        await me.stream.setPrompt(text);
+        const sw = me.stream.switches[me.stream.switches.length - 1];
+        self.postMessage({ type: 'switched', id: me.id, text, token: sw.token, frame: produced });
+      }
+      if (produced - me.played > me.ahead) {
+        flush();
+        await new Promise((resolve) => { me.wake = resolve; });
+        continue;
+      }
+      const t0 = performance.now();
+      const { value, done } = await it.next();
+      busyMs += performance.now() - t0;
+      if (done) break;
+      batch.push(value.joints);
+      produced += 1;
+      // hand the frames over at each chunk's end (the next call samples tokens), and let messages in
+      if (produced === 1 || batch.length >= 4) {
+        flush();
+        await yieldToEvents();
+      }
+    }
+    flush();
+  } finally {
+    await it.return?.();
+    if (run === me) run = null;
+    self.postMessage({ type: 'end', id: me.id, frames: produced, busyMs });
+  }
+}
+
+function stopStream() {
+  if (!run) return;
+  run.stopped = true;
+  wake(run);
+  run = null;
+}
+
+function wake(me) {
+  const w = me.wake;
+  me.wake = null;
+  w?.();
+}
+
+/** Let queued messages (played, setPrompt, stop) run: a task boundary, without setTimeout's clamping. */
+function yieldToEvents() {
+  return new Promise((resolve) => {
+    const channel = new MessageChannel();
+    channel.port1.onmessage = () => resolve();
+    channel.port2.postMessage(null);
+  });
+}
+
+/** fetch for urlLoader, reporting each file's download as it goes. */
+async function progressFetch(url) {
+  const response = await fetch(url);
+  const name = decodeURIComponent(new URL(url).pathname.split('/').pop());
+  return {
+    ok: response.ok,
+    status: response.status,
+    async arrayBuffer() {
+      const total = Number(response.headers.get('content-length')) || 0;
+      const reader = response.body.getReader();
+      const parts = [];
+      let got = 0, last = 0;
+      for (;;) {
+        const { done, value } = await reader.read();
+        if (done) break;
+        parts.push(value);
+        got += value.length;
+        if (got - last > (1 << 20) || got === total) {
+          last = got;
+          self.postMessage({ type: 'status', text: `loading ${name}: ${mb(got)}${total ? ` of ${mb(total)}` : ''}` });
+        }
+      }
+      const out = new Uint8Array(got);
+      let at = 0;
+      for (const p of parts) {
+        out.set(p, at);
+        at += p.length;
+      }
+      self.postMessage({ type: 'status', text: `checking and opening ${name} (${mb(got)})` });
+      return out.buffer;
+    },
+  };
+}
+
+function mb(bytes) {
+  return bytes >= 1 << 20 ? `${(bytes / (1 << 20)).toFixed(1)} MB` : `${(bytes / 1024).toFixed(0)} KB`;
+}
+
+function describe(e) {
+  return e && e.message ? `${e.name && e.name !== 'Error' ? `${e.name}: ` : ''}${e.message}` : String(e);
+}
