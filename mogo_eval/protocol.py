@@ -48,6 +48,7 @@ from mogo_export.data.dataset import MotionDataset, read_captions
 
 from .judges.evaluator import (ContrastiveEvaluator, Evaluator, EvaluatorConfig, T2MEvaluator, TrainedEvaluator,
                                pad_motions)
+from .quality import judged_variants
 
 METRICS = ("top1", "top2", "top3", "fid", "mm_dist", "diversity", "multimodality")
 
@@ -520,7 +521,7 @@ def evaluate(req: EvaluateRequest, progress: bool = True) -> dict:
         from mogo_runtime.bundle import Bundle
 
         available = list(Bundle.load(req.bundle).variants)
-        for v in req.variants or available:
+        for v in req.variants or judged_variants(available):
             if v not in available:
                 raise ValueError(f"bundle {req.bundle} has no variant {v!r}; it has {', '.join(available)}")
             sources.append(bundle_source(req.bundle, v, sampling, cfg.length, threads=req.threads))

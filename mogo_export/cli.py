@@ -4,6 +4,7 @@
     mogo-export train --data data/procedural --out checkpoints/base --preset base
     mogo-export export checkpoints/base --out bundles/base
     mogo-export verify bundles/base --checkpoints checkpoints/base
+    mogo-export opset bundles/base/step.portable.onnx --opset 15 -o step.opset15.onnx   # for older Unity Sentis
 
 Evaluation (quality, ablation, train-evaluator, evaluate) is `mogo-eval` (package mogo_eval), not the product's.
 """
@@ -36,10 +37,15 @@ def _train(args) -> int:
 
 
 def _export(args) -> int:
-    from .export.bundle import INT8_GRAPHS, export_bundle
+    from .export.bundle import INT8_GRAPHS, ORT_VARIANTS, export_bundle
 
     int8 = () if args.int8 == "none" else tuple(g for g in args.int8.split(",") if g) or INT8_GRAPHS
-    export_bundle(args.checkpoints, args.out, opset=args.opset, int8=int8, data=args.data)
+    if args.ort is None:   # default: every variant the bundle has of int8 and portable
+        ort = tuple(v for v in ORT_VARIANTS if args.portable or v != "portable")
+    else:
+        ort = () if args.ort == "none" else tuple(v for v in args.ort.split(",") if v)
+    export_bundle(args.checkpoints, args.out, opset=args.opset, int8=int8, portable=args.portable, ort=ort,
+                  data=args.data)
     return 0
 
 
@@ -48,10 +54,22 @@ def _verify(args) -> int:
 
     th = Thresholds(fp32_abs=args.fp32_abs, joints_mm=args.joints_mm, int8_token_agreement=args.int8_agreement,
                     int8_text_cosine=args.int8_cosine)
-    report = verify(args.bundle, args.checkpoints, th, int8=not args.no_int8)
+    report = verify(args.bundle, args.checkpoints, th, int8=not args.no_int8, portable=not args.no_portable)
     print(report.table())
     print("PASS" if report.ok else "FAIL: at least one check breached its bar")
     return 0 if report.ok else 1
+
+
+def _opset(args) -> int:
+    import onnx
+
+    from .export.opset import portable_problems, to_opset
+
+    model = to_opset(onnx.load(str(args.graph)), args.opset)
+    problems = portable_problems(model, args.opset)
+    onnx.save(model, str(args.out))
+    print(f"{args.out}: opset {args.opset}" + (f"; not portable: {'; '.join(problems)}" if problems else ""))
+    return 0
 
 
 def main(argv=None) -> int:
@@ -75,6 +93,11 @@ def main(argv=None) -> int:
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET)
     p.add_argument("--int8", default="step,text_encoder",
                    help="graphs to also write as int8: comma-separated from step,text_encoder, or 'none'")
+    p.add_argument("--portable", action=argparse.BooleanOptionalAction, default=True,
+                   help="write the portable variant (fixed-capacity step graph, opset 17, no int8 ops)")
+    p.add_argument("--ort", default=None,
+                   help="variants to also write in ORT format for an onnxruntime minimal build: comma-separated "
+                        "from int8,portable, or 'none' (default: both)")
     p.add_argument("--data", type=Path, default=None,
                    help="dataset for the TCA caption index (default: the one the checkpoints were trained on)")
     p.set_defaults(run=_export)
@@ -88,7 +111,15 @@ def main(argv=None) -> int:
                    help="teacher-forced int8 vs fp32 argmax agreement per (step, level)")
     p.add_argument("--int8-cosine", type=float, default=0.98)
     p.add_argument("--no-int8", action="store_true")
+    p.add_argument("--no-portable", action="store_true", help="skip the portable variant's checks")
     p.set_defaults(run=_verify)
+
+    p = sub.add_parser("opset", help="convert a graph to an older ONNX opset (the portable graphs go down to 15, "
+                                     "the portable step to 14; docs/bundle.md)")
+    p.add_argument("graph", type=Path)
+    p.add_argument("--opset", type=int, required=True)
+    p.add_argument("-o", "--out", type=Path, required=True)
+    p.set_defaults(run=_opset)
 
     return run_command("mogo-export", ap.parse_args(argv))
 

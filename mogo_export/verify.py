@@ -12,7 +12,11 @@
    Free-running greedy agreement (each variant follows its own tokens) is printed too, not gated: after the
    first differing token the two runs are different motions, so it measures chaos as much as quantization;
 4. endless streams (bundles trained for them): torch and ORT fp32 through one 1,000-step stream with context
-   rebuilds and prompt switches: identical greedy tokens (the count of steps before the first difference).
+   rebuilds and prompt switches: identical greedy tokens (the count of steps before the first difference);
+5. the portable variant (fixed-capacity step graph): the graph against the torch step at several batches and
+   positions (the written slot, the untouched slots, the logits), then 2 and 4 as for fp32: greedy tokens and
+   joints of the prompts, and the 1,000-step endless stream, identical to torch;
+6. ORT-format variants: greedy tokens identical to the variant each was converted from.
 """
 from __future__ import annotations
 
@@ -24,7 +28,7 @@ import torch
 
 from mogo_runtime.bundle import Bundle
 from mogo_runtime.decoding import GenerationTask, decode_tokens
-from mogo_runtime.engine import OrtBackend, open_backend
+from mogo_runtime.engine import FixedCache, FixedCacheBackend, OrtBackend, open_backend
 from mogo_runtime.features import recover_from_ric
 from mogo_runtime.sampling import GREEDY
 
@@ -195,21 +199,70 @@ def endless_tokens(backend, prompts: list[str], streaming, steps: int, switch_ev
     return task.timeline(embs, starts, seed=0).tokens, counted.calls - steps
 
 
-def check_endless(gen: TorchGenerator, fp32: OrtBackend, streaming, report: Report, steps: int = 1000,
-                  switch_every: int = 97) -> None:
-    """Torch and ORT fp32 through the same endless stream: identical greedy tokens, step by step."""
+def check_endless(gen: TorchGenerator, backend, streaming, report: Report, steps: int = 1000,
+                  switch_every: int = 97, name: str = "ORT fp32") -> None:
+    """Torch and ORT (`name`) through the same endless stream: identical greedy tokens, step by step."""
     prompts = list(PROMPTS)
     a, restarts = endless_tokens(gen.backend, prompts, streaming, steps, switch_every)
-    b, _ = endless_tokens(fp32, prompts, streaming, steps, switch_every)
+    b, _ = endless_tokens(backend, prompts, streaming, steps, switch_every)
     same = np.all(a == b, axis=1)
     first = int(np.argmin(same)) if not same.all() else steps
-    report.add(f"endless stream, greedy tokens identical torch vs ORT fp32 ({steps} steps, {restarts} restarts at "
+    report.add(f"endless stream, greedy tokens identical torch vs {name} ({steps} steps, {restarts} restarts at "
                f"END, refresh after {streaming.window + streaming.refresh}, switch every {switch_every})", first,
                f"= {steps}", first == steps, fmt="{:.0f}")
 
 
+def check_portable_graph(gen: TorchGenerator, portable: FixedCacheBackend, report: Report, th: Thresholds) -> None:
+    """The fixed-capacity step against the torch step whose past is the cache's first `position` slots: the
+    logits, the slot it writes, and the slots after it, which it must hand back unchanged."""
+    c = gen.backend.transformer.cfg
+    cap = portable.capacity
+    for batch, position in [(1, 0), (2, 1), (1, 7), (3, cap // 2), (2, cap - 1)]:
+        text, tokens, full = _step_feed(c, batch, 1, cap, seed=batch * 131 + position)
+        if position == 0:
+            tokens[:, 0] = c.bos_id
+        with torch.no_grad():
+            want = StepGraph(gen.backend.transformer)(text, tokens, *(p[:, :, :position] for p in full))
+        logits, cache = portable.step(text.numpy(), tokens.numpy(), FixedCache([p.numpy() for p in full], position))
+        err = max(np.abs(logits - want[0].numpy()).max(),
+                  max(np.abs(p[:, :, :position + 1] - w.numpy()).max() for p, w in zip(cache.arrays, want[1:])))
+        kept = all(np.array_equal(p[:, :, position + 1:], f[:, :, position + 1:].numpy())
+                   for p, f in zip(cache.arrays, full))
+        report.add(f"portable step graph b={batch} position={position} of {cap}" + ("" if kept else
+                   " (CHANGED the slots after position)"), err, f"< {th.fp32_abs:g}", err < th.fp32_abs and kept)
+
+
+def check_portable(gen: TorchGenerator, portable: FixedCacheBackend, streaming, report: Report, th: Thresholds,
+                   prompts=PROMPTS) -> None:
+    check_portable_graph(gen, portable, report, th)
+    prompts, seeds = list(prompts), list(range(len(prompts)))
+    torch_tokens = gen.generate_tokens(prompts, seeds)
+    tokens = _ort_tokens(portable, prompts, seeds, gen.max_tokens)
+    identical = sum(np.array_equal(a, b) for a, b in zip(torch_tokens, tokens))
+    report.add(f"greedy tokens identical, torch vs ORT portable ({len(prompts)} prompts)", identical,
+               f"= {len(prompts)}", identical == len(prompts), fmt="{:.0f}")
+    J = gen.skeleton.num_joints
+    tj = [recover_from_ric(f, J) for f in decode_tokens(gen.backend, torch_tokens)]
+    pj = [recover_from_ric(f, J) for f in decode_tokens(portable, tokens)]
+    err_mm = max((np.abs(a - b).max() * 1000 if a.shape == b.shape else np.inf) for a, b in zip(tj, pj))
+    report.add("decoded joints, torch vs ORT portable (mm)", err_mm, f"< {th.joints_mm:g}", err_mm < th.joints_mm)
+    if streaming is not None:
+        check_endless(gen, portable, streaming, report, name="ORT portable")
+
+
+def check_ort_variants(bundle: Bundle, report: Report, prompts=PROMPTS) -> None:
+    """Each ORT-format variant gives the greedy tokens of the variant it was converted from."""
+    prompts, seeds = list(prompts), list(range(len(prompts)))
+    for variant, source in bundle.manifest.ort.variants.items():
+        a, b = (_ort_tokens(open_backend(bundle, v, threads=2), prompts, seeds, bundle.dims.max_tokens)
+                for v in (variant, source))
+        identical = sum(np.array_equal(x, y) for x, y in zip(a, b))
+        report.add(f"greedy tokens identical, {variant} vs {source} ({len(prompts)} prompts)", identical,
+                   f"= {len(prompts)}", identical == len(prompts), fmt="{:.0f}")
+
+
 def verify(bundle_path: str | Path, ckpt_dir: str | Path, th: Thresholds = Thresholds(), int8: bool = True,
-           prompts=PROMPTS) -> Report:
+           portable: bool = True, prompts=PROMPTS) -> Report:
     bundle = Bundle.load(bundle_path)
     gen = TorchGenerator.from_checkpoints(ckpt_dir)
     fp32 = OrtBackend(bundle, "fp32", threads=2)
@@ -217,6 +270,11 @@ def verify(bundle_path: str | Path, ckpt_dir: str | Path, th: Thresholds = Thres
     report = Report()
     check_graphs(gen, fp32, report, th)
     check_end_to_end(gen, fp32, q, report, th, prompts)
-    if bundle.manifest.streaming is not None:
-        check_endless(gen, fp32, bundle.manifest.streaming, report)
+    streaming = bundle.manifest.streaming
+    if streaming is not None:
+        check_endless(gen, fp32, streaming, report)
+    if portable and "portable" in bundle.variants:
+        check_portable(gen, open_backend(bundle, "portable", threads=2), streaming, report, th, prompts)
+    if bundle.manifest.ort is not None:
+        check_ort_variants(bundle, report, prompts)
     return report

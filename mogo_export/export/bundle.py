@@ -1,6 +1,12 @@
-"""Write a bundle: every graph, the tokenizer, int8 variants and a manifest, atomically (docs/bundle.md).
+"""Write a bundle: every graph, the tokenizer, the int8 and portable variants, their ORT-format copies and a
+manifest, atomically (docs/bundle.md).
 
     mogo-export export checkpoints/base --out bundles/base [--opset 20] [--int8 step,text_encoder]
+                                        [--no-portable] [--ort int8,portable]
+
+Opsets: the dynamic step graphs at `--opset`; the text encoder, lookup and decoder at min(opset, 17), so that one
+file serves every variant, the portable one included (at 17 instead of 20 the text encoder differs by 1e-7 and runs
+as fast on base); the portable step at the same opset as they.
 
 The bundle is built in a hidden sibling folder and renamed into place only when complete, so a crash never
 leaves a half-written bundle looking finished.
@@ -18,13 +24,15 @@ import numpy as np
 import onnx
 import onnxruntime
 import onnxscript
+import tokenizers
 import torch
 from onnxruntime.quantization import QuantType, quantize_dynamic
 
 from mogo_runtime.bundle import sha256_file
 from mogo_runtime.files import write_atomic
-from mogo_runtime.manifest import (SCHEMA, SCHEMA_VERSION, GraphFile, GraphSpec, Manifest, Normalization, StreamingSpec,
-                                   TensorSpec, TextEncoderSpec)
+from mogo_runtime.manifest import (ORT_SUFFIX, PORTABLE, PORTABLE_OPSET, SCHEMA, SCHEMA_VERSION, GraphFile, GraphSpec,
+                                   Manifest, Normalization, OrtFormat, PortableSpec, StreamingSpec, TensorSpec,
+                                   TextEncoderSpec, required_capacity)
 from mogo_runtime.sampling import SamplingConfig
 from mogo_runtime.skeleton import get_skeleton
 
@@ -35,9 +43,14 @@ from ..models.transformer import RQHCTransformer
 from ..models.vq import MoSAVQ
 from .caption_index import build_caption_index, tca_manifest_section
 from .graphs import DEFAULT_OPSET, export_decoder, export_lookup, export_step
+from .opset import portable_problems
+from .ort_format import to_ort, write_required_operators
+from .portable import export_portable_step
 from .text_encoder import export_text_encoder, quantize_text_encoder
 
 INT8_GRAPHS = ("step", "text_encoder")  # lookup and decoder stay fp32: ConvInteger ran slower than fp32 here
+ORT_VARIANTS = ("int8", PORTABLE)       # variants also written in ORT format, for an onnxruntime minimal build
+REQUIRED_OPERATORS = "required_operators.config"
 # Classifier-free guidance 2 with top_p 0.8, measured on `base` (int8, 10-minute streams, 3 seeds; README): endless
 # streams follow their prompts 0.94 of the time (guidance 1, top_p 0.95: 0.84 on one seed), single clips 0.96
 # (0.90 before), at two step rows per token. Guidance 3 followed best (0.97) but its feet skated 4 points more
@@ -69,14 +82,35 @@ def quantize_step(fp32: Path, int8: Path) -> dict:
     return options
 
 
+def _write_ort(folder: Path, variants: dict, names: tuple[str, ...], log) -> OrtFormat:
+    """Variant `v` of `names` also as `v_ort`, every graph file converted to ORT format (x.onnx -> x.ort, each file
+    once), plus the minimal build's operator list of all of them. Adds the variants to `variants`."""
+    converted: dict[str, Path] = {}
+    for v in names:
+        log(f"converting the {v} variant to ORT format ...")
+        for entry in variants[v].values():
+            if entry.file not in converted:
+                converted[entry.file] = folder / (Path(entry.file).stem + ORT_SUFFIX)
+                to_ort(folder / entry.file, converted[entry.file])
+        variants[f"{v}_ort"] = {g: GraphFile(converted[e.file].name, e.quantization) for g, e in variants[v].items()}
+    write_required_operators(sorted(set(converted.values())), folder / REQUIRED_OPERATORS)
+    return OrtFormat(required_operators=REQUIRED_OPERATORS, variants={f"{v}_ort": v for v in names},
+                     onnxruntime=onnxruntime.__version__)
+
+
 def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OPSET,
-                  int8: tuple[str, ...] = INT8_GRAPHS, data: str | Path | None = None, log=print) -> Path:
+                  int8: tuple[str, ...] = INT8_GRAPHS, portable: bool = True, ort: tuple[str, ...] = ORT_VARIANTS,
+                  data: str | Path | None = None, log=print) -> Path:
     """`data`: the dataset whose training captions become the TCA caption index (default: the one the
-    checkpoints were trained on, as recorded in them). Without it the bundle has no index and says so."""
+    checkpoints were trained on, as recorded in them). Without it the bundle has no index and says so.
+    `portable`: write the portable variant; `ort`: the variants to also write in ORT format."""
     ckpt_dir, out = Path(ckpt_dir), Path(out)
     unknown = set(int8) - set(INT8_GRAPHS)
     if unknown:
         raise ValueError(f"--int8 accepts {list(INT8_GRAPHS)}; got {sorted(unknown)}")
+    if set(ort) - set(ORT_VARIANTS) or (PORTABLE in ort and not portable):
+        raise ValueError(f"--ort accepts {list(ORT_VARIANTS)} (portable only with the portable variant); got "
+                         f"{list(ort)}")
     trained = load_trained(ckpt_dir)  # every meta field checked; no defaults
     vq, tr, vq_payload, tr_payload = trained.vq, trained.transformer, trained.vq_payload, trained.transformer_payload
     meta = vq_payload["meta"]
@@ -97,14 +131,16 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
         graph_meta = {"mogo.schema": SCHEMA, "mogo.schema_version": SCHEMA_VERSION, "mogo.producer": __version__,
                       **{f"mogo.{k}": v for k, v in dims.to_dict().items()}}
         t0 = time.perf_counter()
+        shared_opset = min(opset, PORTABLE_OPSET)      # text encoder, lookup, decoder: one file for every variant
         graphs, variants = {}, {"fp32": {}, "int8": {}}
         log("exporting text_encoder ...")
-        te = export_text_encoder(encoder, tmp, opset)
+        te = export_text_encoder(encoder, tmp, shared_opset)
         graphs["text_encoder"] = {"inputs": te["inputs"], "outputs": te["outputs"]}
         log("exporting step, lookup, decoder ...")
         graphs["step"] = export_step(tr, tmp / "step.onnx", opset, {**graph_meta, "mogo.graph": "step"})
-        graphs["lookup"] = export_lookup(vq, tmp / "lookup.onnx", opset, {**graph_meta, "mogo.graph": "lookup"})
-        graphs["decoder"] = export_decoder(vq, meta["mean"], meta["std"], tmp / "decoder.onnx", opset,
+        graphs["lookup"] = export_lookup(vq, tmp / "lookup.onnx", shared_opset,
+                                         {**graph_meta, "mogo.graph": "lookup"})
+        graphs["decoder"] = export_decoder(vq, meta["mean"], meta["std"], tmp / "decoder.onnx", shared_opset,
                                            {**graph_meta, "mogo.graph": "decoder"})
         tca = None
         data_root = Path(data) if data is not None else Path(meta.get("dataset", ""))
@@ -121,11 +157,26 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
             fp32, q = tmp / f"{g}.onnx", tmp / f"{g}.int8.onnx"
             options = quantize_text_encoder(fp32, q) if g == "text_encoder" else quantize_step(fp32, q)
             variants["int8"][g] = GraphFile(q.name, {"method": "onnxruntime.quantize_dynamic", **options})
+        portable_spec = None
+        if portable:
+            capacity = required_capacity(dims, StreamingSpec(**trained.streaming) if trained.streaming else None)
+            log(f"exporting the portable step (cache of {capacity} steps, opset {shared_opset}) ...")
+            io = export_portable_step(tr, tmp / "step.portable.onnx", capacity, shared_opset,
+                                      {**graph_meta, "mogo.graph": "step", "mogo.capacity": capacity})
+            variants[PORTABLE] = {**variants["fp32"], "step": GraphFile("step.portable.onnx")}
+            portable_spec = PortableSpec(capacity=capacity, opset=shared_opset, step=_graph_spec(io))
+            for g, entry in variants[PORTABLE].items():
+                problems = portable_problems(onnx.load(str(tmp / entry.file)), shared_opset)
+                if problems:
+                    raise RuntimeError(f"{entry.file} cannot be in the portable variant: {'; '.join(problems)}")
+        ort_format = _write_ort(tmp, variants, ort, log) if ort else None
         te_meta = te.get("metadata", {})
         manifest = Manifest(
             producer={"name": "mogo-export", "version": __version__, "torch": torch.__version__,
                          "onnx": onnx.__version__, "onnxruntime": onnxruntime.__version__,
                          "onnxscript": onnxscript.__version__, "python": platform.python_version(),
+                         # the normative tokenizer (docs/bundle.md, "Tokenising, exactly"): its Unicode tables
+                         "tokenizers": tokenizers.__version__,
                          "opset": opset, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                          "checkpoints": {"vq_step": vq_payload["train"].get("step"),
                                          "transformer_step": tr_payload["train"].get("step"),
@@ -142,6 +193,8 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
             streaming=StreamingSpec(**trained.streaming) if trained.streaming else None,
             graphs={g: _graph_spec(io) for g, io in graphs.items()},
             variants=variants,
+            portable=portable_spec,
+            ort=ort_format,
             files={p.name: (p.stat().st_size, sha256_file(p)) for p in sorted(tmp.iterdir())},
         )
         text = json.dumps(manifest.to_dict(), indent=2) + "\n"

@@ -19,6 +19,7 @@ from torch.export import Dim
 
 from ..models.transformer import RQHCTransformer
 from ..models.vq import MoSAVQ
+from .opset import TORCH_MIN_OPSET, default_opset, to_opset
 
 DEFAULT_OPSET = 20
 _DTYPES = {onnx.TensorProto.FLOAT: "float32", onnx.TensorProto.INT64: "int64", onnx.TensorProto.FLOAT16: "float16"}
@@ -96,15 +97,18 @@ def check_graph(path: Path, expected: dict[str, list]) -> dict:
     return spec
 
 
-def _export(module: nn.Module, args: tuple, path: Path, input_names, output_names, dynamic_shapes, opset: int,
-            metadata: dict) -> None:
+def export_module(module: nn.Module, args: tuple, path: Path, input_names, output_names, dynamic_shapes,
+                  opset: int, metadata: dict) -> None:
+    """Below opset 18 torch would convert, fail, and silently keep 18: we export at 18 and convert (opset.py)."""
     module.eval()
     with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
         warnings.simplefilter("ignore")
         program = torch.onnx.export(module, args, dynamo=True, input_names=input_names, output_names=output_names,
-                                    dynamic_shapes=dynamic_shapes, opset_version=opset, external_data=False,
-                                    optimize=True, verbose=False)
-    model = program.model_proto
+                                    dynamic_shapes=dynamic_shapes, opset_version=max(opset, TORCH_MIN_OPSET),
+                                    external_data=False, optimize=True, verbose=False)
+    model = to_opset(program.model_proto, opset)
+    if default_opset(model) != opset:
+        raise RuntimeError(f"{path.name}: exported at opset {default_opset(model)}, asked for {opset}")
     for key, value in metadata.items():
         entry = model.metadata_props.add()
         entry.key, entry.value = key, str(value)
@@ -130,8 +134,8 @@ def export_step(model: RQHCTransformer, path: Path, opset: int = DEFAULT_OPSET, 
     batch, steps, plen = Dim("batch", min=1, max=1024), Dim("steps", min=1, max=4096), Dim("past", min=0, max=8192)
     dyn = {"text_embedding": {0: batch}, "tokens": {0: batch, 1: steps},
            "past_flat": [{0: batch, 2: plen} for _ in past]}
-    _export(StepGraph(model), (text, tokens, *past), path, names_in, names_out,
-            (dyn["text_embedding"], dyn["tokens"], tuple(dyn["past_flat"])), opset, metadata or {})
+    export_module(StepGraph(model), (text, tokens, *past), path, names_in, names_out,
+                  (dyn["text_embedding"], dyn["tokens"], tuple(dyn["past_flat"])), opset, metadata or {})
     expected = {"text_embedding": ["batch", c.text_dim], "tokens": ["batch", "steps", L],
                 "logits": ["batch", "steps", L, c.codebook_size + 1]}
     for i in range(c.n_layers):
@@ -151,7 +155,7 @@ def export_lookup(vq: MoSAVQ, path: Path, opset: int = DEFAULT_OPSET, metadata: 
     c = vq.cfg
     tokens = torch.randint(0, c.codebook_size, (2, 3, c.num_levels), generator=torch.Generator().manual_seed(0))
     dyn = ({0: Dim("batch", min=1, max=1024), 1: Dim("tokens", min=1, max=8192)},)
-    _export(LookupGraph(vq), (tokens,), path, ["tokens"], ["latent"], dyn, opset, metadata or {})
+    export_module(LookupGraph(vq), (tokens,), path, ["tokens"], ["latent"], dyn, opset, metadata or {})
     return check_graph(path, {"tokens": ["batch", "tokens", c.num_levels], "latent": ["batch", "tokens", c.code_dim]})
 
 
@@ -161,5 +165,5 @@ def export_decoder(vq: MoSAVQ, mean, std, path: Path, opset: int = DEFAULT_OPSET
     c = vq.cfg
     latent = torch.randn(2, 3, c.code_dim, generator=torch.Generator().manual_seed(0))
     dyn = ({0: Dim("batch", min=1, max=1024), 1: Dim("tokens", min=1, max=8192)},)
-    _export(DecoderGraph(vq, mean, std), (latent,), path, ["latent"], ["features"], dyn, opset, metadata or {})
+    export_module(DecoderGraph(vq, mean, std), (latent,), path, ["latent"], ["features"], dyn, opset, metadata or {})
     return check_graph(path, {"latent": ["batch", "tokens", c.code_dim], "features": ["batch", "any", c.input_dim]})

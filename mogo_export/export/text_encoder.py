@@ -22,6 +22,7 @@ import torch
 from mogo_runtime.text import TokenizerSettings, tokenize
 
 from .graphs import io_spec
+from .opset import TORCH_MIN_OPSET, default_opset, to_opset
 
 INPUTS = ("input_ids", "attention_mask")
 OUTPUT = "text_embedding"
@@ -62,13 +63,15 @@ def export_text_encoder(encoder, out_dir: str | Path, opset: int = 20) -> dict:
         warnings.filterwarnings("ignore", message=".*axis name.*will not be used")
         torch.onnx.export(
             encoder, (torch.from_numpy(ids), torch.from_numpy(mask)), str(onnx_path),
-            dynamo=True, opset_version=opset, external_data=False, verbose=False,
+            dynamo=True, opset_version=max(opset, TORCH_MIN_OPSET), external_data=False, verbose=False,
             input_names=list(INPUTS), output_names=[OUTPUT],
             dynamic_shapes={"input_ids": {0: batch, 1: seq}, "attention_mask": {0: batch, 1: seq}},
         )
     encoder.train(was_training)
 
-    model = onnx.load(str(onnx_path))
+    model = to_opset(onnx.load(str(onnx_path)), opset)   # torch itself would silently keep 18 (opset.py)
+    if default_opset(model) != opset:
+        raise RuntimeError(f"{onnx_path}: exported at opset {default_opset(model)}, asked for {opset}")
     _set_metadata(model, {
         "encoder": encoder.name,
         "dim": str(encoder.dim),

@@ -114,26 +114,29 @@ class Bundle:
                     sess = ort.InferenceSession(str(fpath), opts, providers=["CPUExecutionProvider"])
                 except Exception as e:
                     raise BundleError(f"{fpath}: onnxruntime cannot load it ({e})") from None
-                self.check_session(graph, fpath, sess)
+                self.check_session(graph, fpath, sess, variant)
 
-    def check_session(self, graph: str, fpath: Path, sess) -> None:
-        """An onnxruntime session of `graph` declares the inputs/outputs (names, element types, ranks) that
-        the manifest lists. A runtime that opens its sessions anyway checks them here, rather than opening
-        every graph twice (check_graph_signatures does, for callers that run nothing)."""
-        spec = self.manifest.graphs[graph]
+    def check_session(self, graph: str, fpath: Path, sess, variant: str = "fp32") -> None:
+        """An onnxruntime session of `variant`'s `graph` declares the inputs/outputs (names, element types, ranks,
+        fixed sizes) that the manifest lists. A runtime that opens its sessions anyway checks them here, rather
+        than opening every graph twice (check_graph_signatures does, for callers that run nothing)."""
+        spec = self.manifest.graph_spec(graph, variant)
+        where = "portable.step" if spec is not self.manifest.graphs[graph] else f"graphs.{graph}"
         for kind, actual in (("inputs", sess.get_inputs()), ("outputs", sess.get_outputs())):
             declared = getattr(spec, kind)
             got = {a.name: a for a in actual}
             if sorted(got) != sorted(d.name for d in declared):
-                raise BundleError(f"{fpath}: {kind} are {sorted(got)}, manifest graphs.{graph}.{kind} "
+                raise BundleError(f"{fpath}: {kind} are {sorted(got)}, manifest {where}.{kind} "
                                   f"lists {sorted(d.name for d in declared)}")
             for d in declared:
                 a = got[d.name]
                 if a.type != DTYPES[d.dtype]:
                     raise BundleError(f"{fpath}: {kind[:-1]} {d.name!r} has type {a.type}, manifest says {d.dtype}")
-                if len(a.shape) != len(d.shape):
-                    raise BundleError(f"{fpath}: {kind[:-1]} {d.name!r} has rank {len(a.shape)}, "
-                                      f"manifest shape is {list(d.shape)}")
+                # a fixed size in the manifest is what a consumer allocates (the portable cache): the graph's own
+                if len(a.shape) != len(d.shape) or any(isinstance(want, int) and have != want
+                                                       for want, have in zip(d.shape, a.shape)):
+                    raise BundleError(f"{fpath}: {kind[:-1]} {d.name!r} has shape {list(a.shape)}, "
+                                      f"manifest {where} says {list(d.shape)}")
         meta = sess.get_modelmeta().custom_metadata_map
         for key, value in self.dims.to_dict().items():   # facts a graph carries must be the manifest's
             if f"mogo.{key}" in meta and meta[f"mogo.{key}"] != str(value):

@@ -269,7 +269,12 @@ def cmd_info(args) -> int:
     print("variants")
     for v in bundle.variants:
         files = [bundle.graph_file(g, v).name for g in GRAPHS]
-        print(f"  {v:<8} {_mb(bundle.total_bytes(v)):>9}  " + ", ".join(f"{g}={f}" for g, f in zip(GRAPHS, files)))
+        print(f"  {v:<12} {_mb(bundle.total_bytes(v)):>9}  " + ", ".join(f"{g}={f}" for g, f in zip(GRAPHS, files)))
+    if m.portable:
+        print(f"portable   step graph over a fixed cache of {m.portable.capacity} steps, opset {m.portable.opset}")
+    if m.ort:
+        print(f"ort        {', '.join(m.ort.variants)} for an onnxruntime {m.ort.onnxruntime} minimal build: "
+              f"operators in {m.ort.required_operators}")
     print("files")
     failed = []
     for name, (size, digest) in m.files.items():

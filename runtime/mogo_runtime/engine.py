@@ -1,8 +1,11 @@
 """The inference engine: a bundle variant's graphs on onnxruntime, as the `decoding.Backend` the loop drives.
 
     backend = open_backend(bundle, "int8", threads=1)   # OrtBackend, wrapped in RowByRow for quantized graphs
+    backend = open_backend(bundle, "portable")          # FixedCacheBackend: the fixed-capacity step graph
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -14,8 +17,10 @@ MAX_THREADS = 64   # onnxruntime segfaults on absurd thread counts; no CPU this 
 
 
 def open_backend(bundle: Bundle, variant: str = "fp32", threads: int = 1):
-    """The backend for one variant: quantized graphs run one row at a time (see RowByRow)."""
-    backend = OrtBackend(bundle, variant, threads)
+    """The backend for one variant: the portable step through FixedCacheBackend, quantized graphs one row at a
+    time (see RowByRow)."""
+    portable = variant in bundle.manifest.variants and bundle.manifest.fixed_cache(variant)
+    backend = (FixedCacheBackend if portable else OrtBackend)(bundle, variant, threads)
     quantized = {g for g in GRAPHS if bundle.manifest.graph_file(g, variant).quantized}
     return RowByRow(backend, quantized) if quantized else backend
 
@@ -61,7 +66,7 @@ class OrtBackend:
                                                                                                 "decoder"))
         # the sessions we run are the ones checked against the manifest (Bundle.load may skip its own check)
         for graph, sess in (("text_encoder", self.text.session), *sessions.items()):
-            bundle.check_session(graph, bundle.graph_file(graph, variant), sess)
+            bundle.check_session(graph, bundle.graph_file(graph, variant), sess, variant)
         self.past_names = manifest.past_names
         self.output_names = ["logits", *manifest.present_names]
         self.cache_heads = self.dims.num_levels * self.dims.n_heads   # [rows, L * n_heads, past, head_dim]
@@ -86,6 +91,50 @@ class OrtBackend:
     def decode(self, tokens: np.ndarray) -> np.ndarray:
         (features,) = self.decoder_session.run(["features"], {"latent": self.lookup(tokens)})
         return features                                                         # (B, T * downsample, D)
+
+
+@dataclass(frozen=True)
+class FixedCache:
+    """The portable step's cache: per layer key and value [rows, L * n_heads, capacity, head_dim] as the last
+    step returned them, and how many of the slots hold steps (the next step writes slot `length`)."""
+
+    arrays: list[np.ndarray]
+    length: int
+
+
+class FixedCacheBackend(OrtBackend):
+    """The portable variant: its step graph takes one time step per call and a cache of fixed capacity, written at
+    the `position` input and returned whole (docs/bundle.md, "The portable variant").
+
+    Same `Backend` as OrtBackend, so the loop runs unchanged: `step` on S tokens (a context rebuild) makes S calls,
+    one per token, and a cache that would overflow its capacity is an error, not a silent overwrite.
+    """
+
+    def __init__(self, bundle: Bundle, variant: str = "portable", threads: int = 1):
+        super().__init__(bundle, variant, threads)
+        if not bundle.manifest.fixed_cache(variant):
+            raise ValueError(f"variant {variant!r} of {bundle.path} has the dynamic step graph: use OrtBackend")
+        self.capacity = bundle.manifest.portable.capacity
+
+    def empty_past(self, rows: int) -> FixedCache:
+        zeros = np.zeros((rows, self.cache_heads, self.capacity, self.dims.head_dim), np.float32)
+        return FixedCache([zeros] * len(self.past_names), 0)                   # read only: one buffer serves all
+
+    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: FixedCache):
+        rows, steps = tokens.shape[:2]
+        if past.length + steps > self.capacity:
+            raise ValueError(f"the portable step's cache holds {self.capacity} steps; {past.length} are cached and "
+                             f"{steps} more were fed (the manifest's portable.capacity covers the generation loop)")
+        text_emb = np.ascontiguousarray(text_emb, dtype=np.float32)
+        tokens = np.asarray(tokens, dtype=np.int64)
+        cache, logits = past.arrays, []
+        for s in range(steps):
+            feed = {"text_embedding": text_emb, "tokens": np.ascontiguousarray(tokens[:, s:s + 1]),
+                    "position": np.full(rows, past.length + s, np.int64), **dict(zip(self.past_names, cache))}
+            out = self.step_session.run(self.output_names, feed)
+            logits.append(out[0])                                               # (rows, 1, L, K + 1)
+            cache = out[1:]
+        return np.concatenate(logits, axis=1), FixedCache(cache, past.length + steps)
 
 
 class RowByRow:

@@ -95,7 +95,7 @@ class MotionGenerator:
         # Only the chosen variant's files are hashed and checked: an int8 run never reads the fp32 text encoder.
         # The backend checks the sessions it opens against the manifest, so loading skips its own graph check.
         if not isinstance(variant, str) or not variant:
-            raise ValueError(f"variant must be a variant name such as 'fp32' or 'int8', got {variant!r}")
+            raise ValueError(f"variant must be a variant name such as 'fp32', 'int8' or 'portable', got {variant!r}")
         self.bundle = (bundle if isinstance(bundle, Bundle) else
                        Bundle.load(bundle, variants=[variant], check_graphs=False))
         self.backend = open_backend(self.bundle, variant, threads)

@@ -26,6 +26,9 @@ GRAPH_IO = {"text_encoder": ({"input_ids": 2, "attention_mask": 2}, {"text_embed
             "lookup": ({"tokens": 3}, {"latent": 3}),
             "decoder": ({"latent": 3}, {"features": 3})}
 DTYPES = {"float32": "tensor(float)", "int64": "tensor(int64)", "float16": "tensor(float16)"}  # -> onnxruntime
+PORTABLE = "portable"          # the variant whose step graph has a fixed-capacity cache (section `portable`)
+PORTABLE_OPSET = 17            # its graphs' opset: this or lower (LayerNormalization's first; docs/bundle.md)
+ORT_SUFFIX = ".ort"            # graph files in onnxruntime's ORT format (section `ort`)
 NORMALIZATION = "decoder-output-denormalised"   # decoder.onnx multiplies by Std and adds Mean itself
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 
@@ -232,6 +235,34 @@ class StreamingSpec:
     refresh: int
 
 
+def required_capacity(model: ModelDims, streaming: StreamingSpec | None) -> int:
+    """Cache slots the generation loop can fill: a clip is BOS plus at most max_tokens - 1 fed tokens (the +1
+    spares a consumer that also feeds the token picked at the last step), an endless stream's context is BOS
+    plus at most window + refresh motion tokens (docs/bundle.md)."""
+    return max(model.max_tokens + 1, 1 + streaming.window + streaming.refresh if streaming else 0)
+
+
+@dataclass(frozen=True)
+class PortableSpec:
+    """The `portable` variant's step graph (docs/bundle.md, "The portable variant"): one time step per call over
+    a KV cache of `capacity` slots per layer, written at `position`; every dim fixed but the batch."""
+
+    capacity: int                    # cache slots; at least required_capacity(model, streaming)
+    opset: int                       # ai.onnx opset of the variant's graphs (at most PORTABLE_OPSET)
+    step: GraphSpec                  # inputs text_embedding, tokens, position, the past names; outputs logits,
+                                     # the present names (shapes in docs/bundle.md)
+
+
+@dataclass(frozen=True)
+class OrtFormat:
+    """Variants converted to onnxruntime's ORT format (`*.ort` graphs) for a minimal onnxruntime build, and the
+    operator list such a build is configured with (`--include_ops_by_config`)."""
+
+    required_operators: str          # the bundle file listing the operators of every .ort graph
+    variants: dict[str, str]         # ORT variant -> the variant it was converted from
+    onnxruntime: str                 # the version that converted them; a minimal build should be this or newer
+
+
 @dataclass(frozen=True)
 class Manifest:
     model: ModelDims
@@ -246,6 +277,8 @@ class Manifest:
     producer: dict | None = None                # informative only: who wrote the bundle, from what
     tca: dict | None = None                     # the caption index section, read by mogo_runtime.tca
     streaming: StreamingSpec | None = None      # None: not trained for endless streams
+    portable: PortableSpec | None = None        # the portable variant's step graph; None: no such variant
+    ort: OrtFormat | None = None                # ORT-format variants; None: none
 
     @property
     def layout(self) -> FeatureLayout:
@@ -264,6 +297,18 @@ class Manifest:
             raise BundleError(f"unknown variant {variant!r}; this bundle has {', '.join(self.variants)}")
         return self.variants[variant][graph]
 
+    def source_variant(self, variant: str) -> str:
+        """The variant an ORT-format variant was converted from; any other variant is its own source."""
+        return self.ort.variants.get(variant, variant) if self.ort else variant
+
+    def fixed_cache(self, variant: str) -> bool:
+        """Whether the variant's step graph is the portable one (fixed-capacity cache, `position` input)."""
+        return self.source_variant(variant) == PORTABLE
+
+    def graph_spec(self, graph: str, variant: str) -> GraphSpec:
+        """The inputs and outputs a variant's graph has: the portable step's differ from `graphs.step`."""
+        return self.portable.step if graph == "step" and self.fixed_cache(variant) else self.graphs[graph]
+
     def to_dict(self) -> dict:
         return {
             "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "producer": self.producer or {},
@@ -274,6 +319,8 @@ class Manifest:
             "cache": asdict(self.cache), **({"tca": self.tca} if self.tca else {}),
             **({"streaming": asdict(self.streaming)} if self.streaming else {}),
             "graphs": {g: asdict(s) for g, s in self.graphs.items()},          # tuples are written as lists
+            **({"portable": asdict(self.portable)} if self.portable else {}),
+            **({"ort": asdict(self.ort)} if self.ort else {}),
             "variants": {v: {g: asdict(e) for g, e in gs.items()} for v, gs in self.variants.items()},
             "files": {n: {"bytes": b, "sha256": h} for n, (b, h) in self.files.items()},
         }
@@ -292,6 +339,7 @@ class Manifest:
             f.fail("producer", f"expected an object, got {_kind(producer)}")
         model = ModelDims.parse(f.sub("model"))
         skeleton = _parse_skeleton(f.sub("skeleton"), f.sub("features"), model)
+        streaming = None if f.get("streaming", None) is None else _parse_streaming(f.sub("streaming"), model)
         return cls(model=model, skeleton=skeleton, normalization=_parse_normalization(f.sub("normalization"), model),
                    text_encoder=_parse_text_encoder(f.sub("text_encoder")),
                    sampling_defaults=_parse_sampling(f.sub("sampling_defaults")),
@@ -299,8 +347,10 @@ class Manifest:
                    graphs={g: GraphSpec.parse(f.sub("graphs").sub(g)) for g in GRAPHS},
                    variants=_parse_variants(f.sub("variants")),
                    tca=None if f.get("tca", None) is None else f.sub("tca").obj,
-                   streaming=None if f.get("streaming", None) is None else _parse_streaming(f.sub("streaming"),
-                                                                                             model)).checked(where)
+                   streaming=streaming,
+                   portable=None if f.get("portable", None) is None else _parse_portable(f.sub("portable"), model,
+                                                                                          streaming),
+                   ort=None if f.get("ort", None) is None else _parse_ort(f.sub("ort"))).checked(where)
 
     def checked(self, where: str) -> "Manifest":
         """Agreement between sections: files named by variants are listed, the step graph's I/O is the cache."""
@@ -308,7 +358,8 @@ class Manifest:
             for g, entry in graphs.items():
                 if entry.file not in self.files:
                     raise BundleError(f"{where}: field variants.{v}.{g}.file: {entry.file!r} is not in 'files'")
-        for name in (self.text_encoder.tokenizer, *([self.tca.get("file")] if self.tca else [])):
+        for name in (self.text_encoder.tokenizer, *([self.tca.get("file")] if self.tca else []),
+                     *([self.ort.required_operators] if self.ort else [])):
             if name not in self.files:
                 raise BundleError(f"{where}: {name!r} is named by the manifest but not listed in 'files'")
         step, m = self.graphs["step"], self.model
@@ -325,7 +376,58 @@ class Manifest:
         if len(logits) != 4 or logits[2:] != (m.num_levels, m.codebook_size + 1):
             raise BundleError(f"{where}: field graphs.step.outputs[0].shape: {list(logits)} should end in "
                               f"[{m.num_levels}, {m.codebook_size + 1}] (levels, codes + END)")
+        self._check_portable(where)
+        self._check_ort(where)
         return self
+
+    def _check_portable(self, where: str) -> None:
+        """The portable section and the portable variant come together; the step's I/O is the fixed cache."""
+        if (self.portable is None) != (PORTABLE not in self.variants):
+            raise BundleError(f"{where}: field portable: " + (
+                "the bundle has no 'portable' variant for it to describe" if self.portable else
+                "missing: variant 'portable' needs this section (its step graph's inputs, outputs and capacity)"))
+        if self.portable is None:
+            return
+        quantized = [g for g, e in self.variants[PORTABLE].items() if e.quantized]
+        if quantized:
+            raise BundleError(f"{where}: field variants.{PORTABLE}.{quantized[0]}.quantization: the portable "
+                              f"variant is fp32 only (no int8 operators)")
+        m, spec, cap = self.model, self.portable.step, self.portable.capacity
+        cache = [m.num_levels * m.n_heads, cap, m.head_dim]
+        want = {"inputs": {"text_embedding": ("float32", [m.text_dim]), "tokens": ("int64", [1, m.num_levels]),
+                           "position": ("int64", []), **dict.fromkeys(self.past_names, ("float32", cache))},
+                "outputs": {"logits": ("float32", [1, m.num_levels, m.codebook_size + 1]),
+                            **dict.fromkeys(self.present_names, ("float32", cache))}}
+        for kind, expected in want.items():
+            got = {s.name: s for s in getattr(spec, kind)}
+            if list(got) != list(expected):
+                raise BundleError(f"{where}: field portable.step.{kind}: names are {list(got)}, expected "
+                                  f"{list(expected)} (n_layers and the cache templates)")
+            for i, (name, (dtype, dims)) in enumerate(expected.items()):
+                s = got[name]
+                # every dim but the batch is fixed: a consumer allocates the cache once, from these numbers
+                if s.dtype != dtype or list(s.shape[1:]) != dims:
+                    raise BundleError(f"{where}: field portable.step.{kind}[{i}]: {name!r} is {s.dtype} "
+                                      f"[{', '.join(map(str, s.shape))}], expected {dtype} "
+                                      f"[{', '.join(map(str, ['batch', *dims]))}]")
+
+    def _check_ort(self, where: str) -> None:
+        """ORT-format variants: each listed with its source, every file an .ort, quantized as its source."""
+        ort = self.ort.variants if self.ort else {}
+        for v, graphs in self.variants.items():
+            in_ort = [e.file.endswith(ORT_SUFFIX) for e in graphs.values()]
+            if any(in_ort) != (v in ort) or any(in_ort) != all(in_ort):
+                raise BundleError(f"{where}: field variants.{v}: " + (
+                    f"an ORT-format variant has only {ORT_SUFFIX} files" if v in ort else
+                    f"{ORT_SUFFIX} files belong to variants listed in ort.variants with their source"))
+        for v, source in ort.items():
+            if v not in self.variants or source not in self.variants or source in ort:
+                raise BundleError(f"{where}: field ort.variants.{v}: {v!r} converted from {source!r}: both must be "
+                                  f"variants, the source not itself in ORT format")
+            for g, e in self.variants[v].items():
+                if e.quantization != self.variants[source][g].quantization:
+                    raise BundleError(f"{where}: field variants.{v}.{g}.quantization: differs from variant "
+                                      f"{source!r}, which it was converted from")
 
 
 def _parse_skeleton(f: _Fields, features: _Fields, model: ModelDims) -> Skeleton:
@@ -420,6 +522,24 @@ def _parse_variants(f: _Fields) -> dict[str, dict[str, GraphFile]]:
             entries[g] = GraphFile(file=e.str("file"), quantization=q or None)
         variants[v] = entries
     return variants
+
+
+def _parse_portable(f: _Fields, model: ModelDims, streaming: StreamingSpec | None) -> PortableSpec:
+    need = required_capacity(model, streaming)
+    capacity = f.get("capacity")
+    if isinstance(capacity, int) and not isinstance(capacity, bool) and 1 <= capacity < need:
+        f.fail("capacity", f"is {capacity}; the generation loop can hold {need} steps "
+                           f"(max(max_tokens + 1, 1 + streaming window + refresh))")
+    return PortableSpec(capacity=f.int("capacity", need), opset=f.int("opset", 7, PORTABLE_OPSET),
+                        step=GraphSpec.parse(f.sub("step")))
+
+
+def _parse_ort(f: _Fields) -> OrtFormat:
+    variants = f.sub("variants")
+    if not variants.obj:
+        f.fail("variants", "expected at least one ORT-format variant")
+    return OrtFormat(required_operators=f.str("required_operators"),
+                     variants={v: variants.str(v) for v in variants.obj}, onnxruntime=f.str("onnxruntime"))
 
 
 def _parse_streaming(f: _Fields, model: ModelDims) -> StreamingSpec:

@@ -7,13 +7,10 @@ import onnx
 import onnxruntime as ort
 import pytest
 import torch
+from random_tiny import random_tiny_bundle
 
-from mogo_export.checkpoint import save_checkpoint
 from mogo_export.export.bundle import export_bundle
 from mogo_export.export.graphs import DecoderGraph, StepGraph
-from mogo_export.models import transformer as T
-from mogo_export.models import vq as V
-from mogo_export.presets import get_preset
 from mogo_runtime.bundle import Bundle, BundleError
 
 FP32_BAR = 1e-4
@@ -21,21 +18,8 @@ FP32_BAR = 1e-4
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
-    """Random tiny models (parity needs no training) exported once for the module."""
-    root = tmp_path_factory.mktemp("export")
-    torch.manual_seed(0)
-    vc = get_preset("tiny").vq_config()
-    vq = V.MoSAVQ(vc).eval()
-    tc = get_preset("tiny").transformer_config(num_levels=vc.num_levels, codebook_size=vc.codebook_size, text_dim=64)
-    tr = T.RQHCTransformer(tc).eval()
-    rng = np.random.default_rng(0)
-    mean, std = rng.normal(size=263).astype(np.float32), rng.uniform(0.5, 2, size=263).astype(np.float32)
-    meta = {"mean": mean.tolist(), "std": std.tolist(), "fps": 20.0, "preset": "tiny", "skeleton": "humanml3d"}
-    save_checkpoint(root / "ck" / "vq.pt", "vq", vc, vq, {"step": 0, "done": True}, meta)
-    save_checkpoint(root / "ck" / "transformer.pt", "transformer", tc, tr, {"step": 0, "done": True},
-                    {"text_encoder": "tiny-random-bert", "max_tokens": 24})
-    bundle = export_bundle(root / "ck", root / "bundle", log=lambda *a: None)
-    return {"vq": vq, "tr": tr, "mean": mean, "std": std, "bundle": bundle, "root": root}
+    """Random tiny models and their bundle, exported once for the test process (random_tiny.py)."""
+    return random_tiny_bundle(tmp_path_factory)
 
 
 def session(path):
@@ -102,8 +86,9 @@ def test_manifest_describes_dims_and_symbolic_shapes(tiny):
     assert manifest["model"]["receptive_field"] == tiny["vq"].receptive_field
     step = {v["name"]: v["shape"] for v in manifest["graphs"]["step"]["inputs"]}
     assert step["tokens"][:2] == ["batch", "steps"] and step["past_key_values.0.key"][2] == "past"
-    assert set(manifest["variants"]) == {"fp32", "int8"}
+    assert set(manifest["variants"]) == {"fp32", "int8", "portable", "int8_ort", "portable_ort"}
     assert manifest["variants"]["int8"]["step"]["file"] == "step.int8.onnx"
+    assert manifest["variants"]["portable"]["step"]["file"] == "step.portable.onnx"
 
 
 def test_bundle_load_refuses_corruption_and_missing_files(tiny, tmp_path):

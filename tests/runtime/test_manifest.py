@@ -3,7 +3,8 @@
 The probe mutates every field of a real manifest (missing, null, a number as a string, a list where an object
 belongs, zero, negative, huge, the wrong type) plus whole-file damage (JSON null, a list, deep nesting, bytes that
 are not UTF-8). Each case must either load (a field that is informative only) or raise BundleError with the file
-and field in its message; the CLI must print one `mogo: error:` line and exit 2, never a traceback.
+and field in its message; the CLI must print one `mogo: error:` line and exit 2, never a traceback. The manifest
+probed is the toy bundle's with every optional section: streaming, the portable variant, ORT-format variants.
 """
 import copy
 import json
@@ -12,7 +13,7 @@ import shutil
 
 import numpy as np
 import pytest
-from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
+from toy_bundle import portable_toy_bundle, toy_bundle  # noqa: F401  (fixtures)
 
 from mogo_runtime import Bundle, BundleError, MotionGenerator
 from mogo_runtime.cli import main
@@ -56,8 +57,8 @@ def _mutations(manifest: dict):
 
 
 @pytest.fixture(scope="module")
-def manifest_dict(toy_bundle) -> dict:  # noqa: F811
-    return json.loads((toy_bundle / "manifest.json").read_text())
+def manifest_dict(portable_toy_bundle) -> dict:  # noqa: F811
+    return json.loads((portable_toy_bundle / "manifest.json").read_text())
 
 
 def test_manifest_round_trips(toy_bundle, manifest_dict):  # noqa: F811
@@ -66,11 +67,16 @@ def test_manifest_round_trips(toy_bundle, manifest_dict):  # noqa: F811
     assert manifest_dict["schema_version"] == SCHEMA_VERSION
     assert parsed.past_names[:2] == ["past_key_values.0.key", "past_key_values.0.value"]
     assert parsed.present_names[-1] == f"present.{parsed.model.n_layers - 1}.value"
+    assert {"streaming", "portable", "ort"} <= set(manifest_dict)
+    assert parsed.fixed_cache("portable") and parsed.fixed_cache("portable_ort") and not parsed.fixed_cache("int8_ort")
+    # a bundle without the optional sections (as exported before the portable variant) reads as before
+    plain = json.loads((toy_bundle / "manifest.json").read_text())
+    assert not {"portable", "ort"} & set(plain) and Manifest.parse(plain, "manifest.json").portable is None
 
 
-def test_every_malformed_field_is_one_clear_error(toy_bundle, manifest_dict, tmp_path, capsys):  # noqa: F811
+def test_every_malformed_field_is_one_clear_error(portable_toy_bundle, manifest_dict, tmp_path, capsys):  # noqa: F811
     bundle = tmp_path / "bundle"
-    shutil.copytree(toy_bundle, bundle)
+    shutil.copytree(portable_toy_bundle, bundle)
     cases = list(_mutations(manifest_dict))
     cases += [("JSON null", None), ("a list", []), ("a string", "manifest"), ("a number", 3)]
     assert len(cases) > 400
@@ -89,12 +95,18 @@ def test_every_malformed_field_is_one_clear_error(toy_bundle, manifest_dict, tmp
                    "model.pad_id deleted", "model.receptive_field = 0", "skeleton.offsets.0.0 = 0",
                    "normalization.mean.0 = ", "normalization.std.0 = ", "text_encoder.name = ",
                    "text_encoder.pooling deleted", "sampling_defaults", "variants.int8 deleted",
-                   "streaming deleted", "streaming = None")
-    symbolic_dim = re.compile(r"graphs\.\w+\.(inputs|outputs)\.0\.shape\.0 = '\w+'$")
+                   "streaming deleted", "streaming = None", "ort.onnxruntime = ")
+    # the batch dim of any graph (the portable step's too) may have another name
+    symbolic_dim = re.compile(r"(graphs\.\w+|portable\.step)\.(inputs|outputs)\.0\.shape\.0 = '\w+'$")
     unexpected = [n for n in loaded if not (n.startswith(informative) or symbolic_dim.match(n)
                                             or re.match(r"variants\.\w+\.\w+\.quantization", n))]
     assert not unexpected, unexpected
     assert refused >= len(cases) - len(loaded) and refused > 350
+    # the new sections are probed too, and what they hold is refused when wrong
+    for section in ("portable.capacity", "portable.opset", "portable.step.inputs.0", "ort.required_operators",
+                    "ort.variants.int8_ort", "variants.portable_ort.step.file"):
+        probed = [n for n, _ in cases if n.startswith(section) and not symbolic_dim.match(n)]
+        assert probed and not set(probed) & set(loaded), (section, set(probed) & set(loaded))
     # the CLI: one line, exit 2, no traceback, on a sample of the refused cases and on raw bytes
     samples = [c for c in cases if c[0] not in loaded][::25]
     for name, data in samples:
@@ -121,6 +133,23 @@ def test_every_malformed_field_is_one_clear_error(toy_bundle, manifest_dict, tmp
     (lambda m: m["graphs"]["step"]["outputs"][0].update(shape=["batch", "steps", 3, 5]), "should end in"),
     (lambda m: m["sampling_defaults"].update(top_p=2.0), "top_p must be in (0, 1]"),
     (lambda m: m.update(schema_version=1), "re-export the bundle"),
+    (lambda m: m["portable"].update(capacity=24), "field portable.capacity: is 24; the generation loop can hold 25"),
+    (lambda m: m["portable"].update(opset=18), "field portable.opset: expected an integer in [7, 17]"),
+    (lambda m: m.pop("portable"), "field portable: missing: variant 'portable' needs this section"),
+    (lambda m: m["variants"].pop("portable") and m["ort"]["variants"].pop("portable_ort")
+     and m["variants"].pop("portable_ort"), "field portable: the bundle has no 'portable' variant"),
+    (lambda m: m["portable"]["step"]["inputs"].pop(2), "field portable.step.inputs: names are"),
+    (lambda m: m["portable"]["step"]["inputs"][3].update(shape=["batch", 2, 26, 4]),
+     "'past_key_values.0.key' is float32 [batch, 2, 26, 4], expected float32 [batch, 2, 25, 4]"),
+    (lambda m: m["portable"]["step"]["inputs"][1].update(shape=["batch", "steps", 2]),
+     "'tokens' is int64 [batch, steps, 2], expected int64 [batch, 1, 2]"),
+    (lambda m: m["variants"]["portable"]["step"].update(quantization={"method": "dynamic"}),
+     "field variants.portable.step.quantization: the portable variant is fp32 only"),
+    (lambda m: m["ort"]["variants"].pop("int8_ort"), "field variants.int8_ort: .ort files belong to variants"),
+    (lambda m: m["variants"]["int8_ort"]["step"].update(file="step.int8.onnx"),
+     "field variants.int8_ort: an ORT-format variant has only .ort files"),
+    (lambda m: m["ort"]["variants"].update(int8_ort="int9"), "field ort.variants.int8_ort: 'int8_ort' converted from"),
+    (lambda m: m["ort"].update(required_operators="ops.config"), "'ops.config' is named by the manifest but not"),
 ])
 def test_errors_name_the_field(toy_bundle, manifest_dict, tmp_path, change, message):  # noqa: F811
     m = copy.deepcopy(manifest_dict)

@@ -4,11 +4,18 @@ Small and random but honest to the contract: a 2-layer step graph whose logits d
 cached token (through the presents it concatenates) and on the number of steps (END grows likelier), a
 codebook lookup, and a causal decoder (receptive field 2) whose output sits around HumanML3D's mean pose, so
 joints, BVH and previews look like a person. The int8 variant is `quantize_dynamic` of the step graph.
+
+With `portable=True` the bundle also has the portable variant (docs/bundle.md, "The portable variant"): a step graph
+with the same weights over a cache of CAPACITY slots, written at `position`, and every graph at opset 17; with
+`ort=True` the int8 and portable variants also in ORT format, with a minimal build's operator list. The default
+bundle has neither: tests/golden/toy.json holds the sha256 of each of its files.
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -18,8 +25,8 @@ from onnx import TensorProto, helper, numpy_helper
 from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
 
 from mogo_runtime.features import FeatureLayout
-from mogo_runtime.manifest import (GraphFile, GraphSpec, Manifest, ModelDims, Normalization, StreamingSpec,
-                                   TensorSpec, TextEncoderSpec)
+from mogo_runtime.manifest import (PORTABLE_OPSET, GraphFile, GraphSpec, Manifest, ModelDims, Normalization, OrtFormat,
+                                   PortableSpec, StreamingSpec, TensorSpec, TextEncoderSpec, required_capacity)
 from mogo_runtime.sampling import SamplingConfig
 from mogo_runtime.skeleton import HUMANML3D
 from mogo_runtime.text import TokenizerSettings, configure_tokenizer
@@ -31,11 +38,15 @@ TEXT_DIM, LATENT, DOWNSAMPLE, RECEPTIVE, FPS, MAX_TOKENS, MAX_LEN = 8, 6, 4, 2, 
 D = FeatureLayout.for_skeleton(HUMANML3D).dim
 WINDOW, REFRESH = 5, 3   # endless streams: the context is rebuilt every few tokens, so tests see many rebuilds
 OPSET, IR = 18, 10   # onnx 1.23 stamps IR 14 by default; onnxruntime 1.31 loads at most IR 13
+DIMS = ModelDims(num_levels=L, codebook_size=K, n_layers=N_LAYERS, n_heads=N_HEADS, head_dim=HEAD_DIM,
+                 text_dim=TEXT_DIM, max_rel_dist=64, downsample=DOWNSAMPLE, fps=FPS, receptive_field=RECEPTIVE,
+                 feature_dim=D, latent_dim=LATENT, max_tokens=MAX_TOKENS)
+CAPACITY = required_capacity(DIMS, StreamingSpec(WINDOW, REFRESH))   # the portable step's cache slots
 
 
-def _model(nodes, name, inputs, outputs, inits, meta) -> onnx.ModelProto:
+def _model(nodes, name, inputs, outputs, inits, meta, opset: int = OPSET) -> onnx.ModelProto:
     graph = helper.make_graph(nodes, name, inputs, outputs, [numpy_helper.from_array(v, k) for k, v in inits.items()])
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], ir_version=IR)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)], ir_version=IR)
     helper.set_model_props(model, meta)
     onnx.checker.check_model(model, full_check=True)
     return model
@@ -71,7 +82,26 @@ def graph_specs(text_dim: int = TEXT_DIM) -> dict:
     }
 
 
-def mean_pool_encoder(table: np.ndarray, max_length: int, name: str = "toy") -> onnx.ModelProto:
+def portable_step_spec() -> dict:
+    """The portable step's I/O: one time step, position, a cache of CAPACITY slots."""
+    cache = ["batch", L * N_HEADS, CAPACITY, HEAD_DIM]
+    step_in = [{"name": "text_embedding", "dtype": "float32", "shape": ["batch", TEXT_DIM]},
+               {"name": "tokens", "dtype": "int64", "shape": ["batch", 1, L]},
+               {"name": "position", "dtype": "int64", "shape": ["batch"]}]
+    step_out = [{"name": "logits", "dtype": "float32", "shape": ["batch", 1, L, K + 1]}]
+    for i in range(N_LAYERS):
+        for kv in ("key", "value"):
+            step_in.append({"name": f"past_key_values.{i}.{kv}", "dtype": "float32", "shape": cache})
+            step_out.append({"name": f"present.{i}.{kv}", "dtype": "float32", "shape": cache})
+    return {"inputs": step_in, "outputs": step_out}
+
+
+def _spec(io: dict) -> GraphSpec:
+    return GraphSpec(*(tuple(TensorSpec(d["name"], d["dtype"], tuple(d["shape"])) for d in io[k])
+                       for k in ("inputs", "outputs")))
+
+
+def mean_pool_encoder(table: np.ndarray, max_length: int, name: str = "toy", opset: int = OPSET) -> onnx.ModelProto:
     """text_embedding = l2norm(sum_s table[ids] * mask / sum_s mask), like MiniLM's pooling."""
     nodes = [
         helper.make_node("Gather", ["table", "input_ids"], ["h"]),                     # (N, S, E)
@@ -81,19 +111,34 @@ def mean_pool_encoder(table: np.ndarray, max_length: int, name: str = "toy") -> 
         helper.make_node("ReduceSum", ["hm", "axis_seq"], ["s"], keepdims=0),          # (N, E)
         helper.make_node("ReduceSum", ["m3", "axis_seq"], ["n"], keepdims=0),          # (N, 1)
         helper.make_node("Div", ["s", "n"], ["mean"]),
-        helper.make_node("ReduceL2", ["mean", "axis_last"], ["norm"], keepdims=1),
+        # ReduceL2 takes its axes as an input from opset 18, as an attribute before
+        helper.make_node("ReduceL2", ["mean", "axis_last"], ["norm"], keepdims=1) if opset >= 18 else
+        helper.make_node("ReduceL2", ["mean"], ["norm"], axes=[-1], keepdims=1),
         helper.make_node("Div", ["mean", "norm"], ["text_embedding"]),
     ]
     inits = {"table": table, "axis_last": np.array([-1], np.int64), "axis_seq": np.array([1], np.int64)}
     io = graph_specs(text_dim=table.shape[1])["text_encoder"]
     return _model(nodes, f"{name}_text_encoder", _io(io["inputs"]), _io(io["outputs"]), inits,
                   {"encoder": name, "dim": str(table.shape[1]), "pooling": "mean", "normalized": "true",
-                   "max_length": str(max_length)})
+                   "max_length": str(max_length)}, opset)
 
 
-def step(rng, spec) -> onnx.ModelProto:
+def step(rng, spec, fixed: bool = False, opset: int = OPSET) -> onnx.ModelProto:
+    """`fixed`: the portable step, whose cache of CAPACITY slots is written at `position` (ScatterElements) and
+    summed over the slots up to it; from an rng in the same state it has the dynamic step's weights."""
     nodes, inits = [], {"axis_time": np.array([2], np.int64), "axis_step": np.array([1], np.int64),
                         "half": np.array(0.5, np.float32), "level_logits": np.array([0, L, K + 1], np.int64)}
+    if fixed:
+        inits.update({"slot_index": np.zeros((1, L * N_HEADS, 1, HEAD_DIM), np.int64), "one": np.array(1, np.int64),
+                      "slots": np.arange(CAPACITY, dtype=np.int64), "axes_row": np.array([1, 2, 3], np.int64),
+                      "axes_slot": np.array([1, 3], np.int64)})
+        nodes += [helper.make_node("Unsqueeze", ["position", "axes_row"], ["position4"]),          # (B, 1, 1, 1)
+                  helper.make_node("Add", ["position4", "slot_index"], ["write"]),                 # (B, LH, 1, Dh)
+                  helper.make_node("Add", ["position", "one"], ["filled"]),
+                  helper.make_node("Unsqueeze", ["filled", "axis_step"], ["filled2"]),             # (B, 1)
+                  helper.make_node("Less", ["slots", "filled2"], ["valid_b"]),                     # (B, cap)
+                  helper.make_node("Cast", ["valid_b"], ["valid2"], to=TensorProto.FLOAT),
+                  helper.make_node("Unsqueeze", ["valid2", "axes_slot"], ["valid"])]               # (B, 1, cap, 1)
     inits["w_text"] = (2.0 * rng.standard_normal((TEXT_DIM, L * (K + 1)))).astype(np.float32)
     nodes += [helper.make_node("MatMul", ["text_embedding", "w_text"], ["zt"]),
               helper.make_node("Reshape", ["zt", "level_logits"], ["z_text"])]       # (B, L, K + 1)
@@ -110,25 +155,34 @@ def step(rng, spec) -> onnx.ModelProto:
         nodes += [
             helper.make_node("Gather", [f"table{i}", "tokens"], [f"e{i}"]),                  # (B, S, L, Dh)
             helper.make_node("Transpose", [f"e{i}"], [f"kv{i}"], perm=[0, 2, 1, 3]),          # (B, L, S, Dh)
-            helper.make_node("Mul", [f"kv{i}", "half"], [f"v{i}"]),
-            helper.make_node("Concat", [f"past_key_values.{i}.key", f"kv{i}"], [f"present.{i}.key"], axis=2),
-            helper.make_node("Concat", [f"past_key_values.{i}.value", f"v{i}"], [f"present.{i}.value"], axis=2),
-            helper.make_node("ReduceSum", [f"present.{i}.key", "axis_time"], [f"h{i}"], keepdims=0),  # (B, L, Dh)
-            helper.make_node("MatMul", [f"h{i}", f"w{i}"], [f"z{i}"]),                        # (B, L, K + 1)
-        ]
+            helper.make_node("Mul", [f"kv{i}", "half"], [f"v{i}"])]
+        if fixed:
+            nodes += [
+                helper.make_node("ScatterElements", [f"past_key_values.{i}.key", "write", f"kv{i}"],
+                                 [f"present.{i}.key"], axis=2),
+                helper.make_node("ScatterElements", [f"past_key_values.{i}.value", "write", f"v{i}"],
+                                 [f"present.{i}.value"], axis=2),
+                helper.make_node("Mul", [f"present.{i}.key", "valid"], [f"cached{i}"]),           # slots <= position
+                helper.make_node("ReduceSum", [f"cached{i}", "axis_time"], [f"h{i}"], keepdims=0)]
+        else:
+            nodes += [
+                helper.make_node("Concat", [f"past_key_values.{i}.key", f"kv{i}"], [f"present.{i}.key"], axis=2),
+                helper.make_node("Concat", [f"past_key_values.{i}.value", f"v{i}"], [f"present.{i}.value"], axis=2),
+                helper.make_node("ReduceSum", [f"present.{i}.key", "axis_time"], [f"h{i}"], keepdims=0)]
+        nodes += [helper.make_node("MatMul", [f"h{i}", f"w{i}"], [f"z{i}"])]                 # (B, L, K + 1)
         terms.append(f"z{i}")
     nodes += [helper.make_node("Sum", terms, ["z"]),
               helper.make_node("Unsqueeze", ["z", "axis_step"], ["logits"])]                # (B, 1, L, K + 1)
-    return _model(nodes, "toy_step", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "step"})
+    return _model(nodes, "toy_step", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "step"}, opset)
 
 
-def lookup(rng, spec) -> onnx.ModelProto:
+def lookup(rng, spec, opset: int = OPSET) -> onnx.ModelProto:
     inits = {"codes": rng.standard_normal((L * K, LATENT)).astype(np.float32),
              "level_offset": (np.arange(L) * K).astype(np.int64), "axis_level": np.array([2], np.int64)}
     nodes = [helper.make_node("Add", ["tokens", "level_offset"], ["flat"]),
              helper.make_node("Gather", ["codes", "flat"], ["per_level"]),                   # (B, T, L, C)
              helper.make_node("ReduceSum", ["per_level", "axis_level"], ["latent"], keepdims=0)]
-    return _model(nodes, "toy_lookup", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "lookup"})
+    return _model(nodes, "toy_lookup", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "lookup"}, opset)
 
 
 def _noise_scale() -> np.ndarray:
@@ -139,7 +193,7 @@ def _noise_scale() -> np.ndarray:
     return scale
 
 
-def decoder(rng, spec, mean: np.ndarray) -> onnx.ModelProto:
+def decoder(rng, spec, mean: np.ndarray, opset: int = OPSET) -> onnx.ModelProto:
     inits = {"pads": np.array([0, 0, RECEPTIVE, 0, 0, 0], np.int64),
              "conv": (0.5 * rng.standard_normal((LATENT, LATENT, RECEPTIVE + 1))).astype(np.float32),
              "w_out": (rng.standard_normal((LATENT, DOWNSAMPLE, D)) * _noise_scale()).reshape(LATENT, -1)
@@ -154,7 +208,8 @@ def decoder(rng, spec, mean: np.ndarray) -> onnx.ModelProto:
              helper.make_node("MatMul", ["yt", "w_out"], ["o"]),
              helper.make_node("Add", ["o", "bias"], ["ob"]),                                  # (B, T, ds * D)
              helper.make_node("Reshape", ["ob", "frames_shape"], ["features"])]               # (B, T * ds, D)
-    return _model(nodes, "toy_decoder", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "decoder"})
+    return _model(nodes, "toy_decoder", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "decoder"},
+                  opset)
 
 
 def word_tokenizer(words: list[str]) -> Tokenizer:
@@ -168,7 +223,39 @@ def word_tokenizer(words: list[str]) -> Tokenizer:
     return tok
 
 
-def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = True, streaming: bool = True) -> Path:
+def to_ort(folder: Path, variants: dict, names: list[str]) -> OrtFormat:
+    """Variants `names` also in ORT format as `<name>_ort`, as mogo_export/export/ort_format.py writes them (that
+    module imports onnxruntime.tools, which imports torch where it is installed: not in the runtime's tests).
+    The operator list is read from the same optimized graphs saved as ONNX, by the opsets they import."""
+    import onnxruntime as ort
+
+    converted, ops = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for v in names:
+            for entry in variants[v].values():
+                if entry.file in converted:
+                    continue
+                converted[entry.file] = folder / (Path(entry.file).stem + ".ort")
+                for target, fmt in ((converted[entry.file], "ORT"), (Path(tmp) / entry.file, "ONNX")):
+                    so = ort.SessionOptions()
+                    so.optimized_model_filepath = str(target)
+                    so.add_session_config_entry("session.save_model_format", fmt)
+                    ort.InferenceSession(str(folder / entry.file), so, providers=["CPUExecutionProvider"],
+                                         disabled_optimizers=["NchwcTransformer"])
+                optimized = onnx.load(str(Path(tmp) / entry.file))
+                opsets = {o.domain or "ai.onnx": o.version for o in optimized.opset_import}
+                for n in optimized.graph.node:
+                    ops.setdefault((n.domain or "ai.onnx", opsets[n.domain or "ai.onnx"]), set()).add(n.op_type)
+            variants[f"{v}_ort"] = {g: GraphFile(converted[e.file].name, e.quantization)
+                                    for g, e in variants[v].items()}
+    lines = ["# Generated from model/s:", *(f"# - {p.name}" for p in sorted(converted.values())),
+             *(f"{d};{o};{','.join(sorted(names))}" for (d, o), names in sorted(ops.items()))]
+    (folder / "required_operators.config").write_text("\n".join(lines) + "\n")
+    return OrtFormat("required_operators.config", {f"{v}_ort": v for v in names}, ort.__version__)
+
+
+def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = True, streaming: bool = True,
+                     portable: bool = False, ort: bool = False) -> Path:
     """Write a complete bundle to `out` (graphs, tokenizer.json, manifest.json with sizes and hashes)."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
@@ -176,31 +263,34 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     specs = graph_specs()
+    opset = PORTABLE_OPSET if portable else OPSET      # every graph of the portable variant at its opset
     table = rng.standard_normal((len(WORDS) + 4, TEXT_DIM)).astype(np.float32)
-    onnx.save(mean_pool_encoder(table, MAX_LEN), out / "text_encoder.onnx")
-    onnx.save(step(rng, specs["step"]), out / "step.onnx")
-    onnx.save(lookup(rng, specs["lookup"]), out / "lookup.onnx")
-    onnx.save(decoder(rng, specs["decoder"], mean), out / "decoder.onnx")
+    onnx.save(mean_pool_encoder(table, MAX_LEN, opset=opset), out / "text_encoder.onnx")
+    step_rng = copy.deepcopy(rng)                      # the portable step: the same weights
+    onnx.save(step(rng, specs["step"], opset=opset), out / "step.onnx")
+    onnx.save(lookup(rng, specs["lookup"], opset), out / "lookup.onnx")
+    onnx.save(decoder(rng, specs["decoder"], mean, opset), out / "decoder.onnx")
     configure_tokenizer(word_tokenizer(WORDS), TokenizerSettings(max_length=MAX_LEN)).save(str(out / "tokenizer.json"))
     fp32 = {g: GraphFile(f"{g}.onnx") for g in specs}
     variants = {"fp32": fp32}
     if int8:
         quantize_dynamic(str(out / "step.onnx"), str(out / "step.int8.onnx"), weight_type=QuantType.QInt8)
         variants["int8"] = {**fp32, "step": GraphFile("step.int8.onnx", {"method": "dynamic", "weight_type": "QInt8"})}
+    if portable:
+        onnx.save(step(step_rng, portable_step_spec(), fixed=True, opset=opset), out / "step.portable.onnx")
+        variants["portable"] = {**fp32, "step": GraphFile("step.portable.onnx")}
+    ort_format = to_ort(out, variants, [v for v in ("int8", "portable") if v in variants]) if ort else None
     files = {p.name: (p.stat().st_size, hashlib.sha256(p.read_bytes()).hexdigest())
              for p in sorted(out.iterdir()) if p.is_file() and p.name != "manifest.json"}
-    dims = ModelDims(num_levels=L, codebook_size=K, n_layers=N_LAYERS, n_heads=N_HEADS, head_dim=HEAD_DIM,
-                     text_dim=TEXT_DIM, max_rel_dist=64, downsample=DOWNSAMPLE, fps=FPS, receptive_field=RECEPTIVE,
-                     feature_dim=D, latent_dim=LATENT, max_tokens=MAX_TOKENS)
     manifest = Manifest(
-        producer={"name": "tests/runtime/toy_bundle.py", "onnx": onnx.__version__, "opset": OPSET},
-        model=dims, skeleton=HUMANML3D,
+        producer={"name": "tests/runtime/toy_bundle.py", "onnx": onnx.__version__, "opset": opset},
+        model=DIMS, skeleton=HUMANML3D,
         normalization=Normalization(mean=tuple(float(x) for x in mean), std=(1.0,) * D),
         text_encoder=TextEncoderSpec(name="toy", tokenizer="tokenizer.json", max_length=MAX_LEN),
         sampling_defaults=SamplingConfig(temperature=1.0, top_p=0.95),
-        graphs={g: GraphSpec(*(tuple(TensorSpec(d["name"], d["dtype"], tuple(d["shape"])) for d in io[k])
-                               for k in ("inputs", "outputs"))) for g, io in specs.items()},
-        variants=variants, files=files, streaming=StreamingSpec(window=WINDOW, refresh=REFRESH) if streaming else None)
+        graphs={g: _spec(io) for g, io in specs.items()}, variants=variants, files=files,
+        streaming=StreamingSpec(window=WINDOW, refresh=REFRESH) if streaming else None,
+        portable=PortableSpec(CAPACITY, opset, _spec(portable_step_spec())) if portable else None, ort=ort_format)
     manifest = manifest.to_dict()
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
     return out
@@ -210,3 +300,10 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
 def toy_bundle(tmp_path_factory, humanml3d_fixture) -> Path:
     """Path of a freshly built toy bundle (about 0.2 s); import this fixture into a test module to use it."""
     return build_toy_bundle(tmp_path_factory.mktemp("toy_bundle"), np.load(humanml3d_fixture / "Mean.npy"))
+
+
+@pytest.fixture(scope="session")
+def portable_toy_bundle(tmp_path_factory, humanml3d_fixture) -> Path:
+    """The toy bundle with the portable variant and the ORT-format variants int8_ort and portable_ort."""
+    return build_toy_bundle(tmp_path_factory.mktemp("portable_toy_bundle"), np.load(humanml3d_fixture / "Mean.npy"),
+                            portable=True, ort=True)

@@ -1,0 +1,128 @@
+"""The portable variant's step graph: the transformer over a KV cache of fixed capacity (docs/bundle.md, "The
+portable variant"). The rules every portable graph meets, and opsets below 17, are in opset.py.
+
+    export_portable_step(transformer, "bundle/step.portable.onnx", capacity=63)
+
+Why a second step graph: Unity Sentis imports no DynamicQuantizeLinear/MatMulInteger and older versions accept
+opsets 7-15 only; onnxruntime-web's WebGPU graph capture and Triton's implicit state want tensors whose shapes never
+change between calls. So the cache is one buffer of `capacity` slots that the graph writes at `position` and hands
+back whole (the sherpa-onnx whisper decoder's pattern):
+
+    text_embedding  float32 [batch, text_dim]
+    tokens          int64   [batch, 1, L]           one time step per call
+    position        int64   [batch]                 the slot this step writes = steps already cached
+    past_key_values.{i}.key/.value  float32 [batch, L*n_heads, capacity, head_dim]
+ -> logits          float32 [batch, 1, L, K+1]
+    present.{i}.key/.value          float32 [batch, L*n_heads, capacity, head_dim]
+
+Slots after `position` are masked out of attention; they only need to hold finite numbers (zeros at the start).
+Besides `batch`, every dim is a number. Inside, the graph avoids what would pin a newer opset or a dynamic shape:
+no Shape (attention runs in the cache's own [batch, L*n_heads, ...] layout, where a position broadcasts over
+heads), no Split (the qkv projection is sliced), relative positions by a one-hot MatMul (exact: one term is
+non-zero) instead of a GatherElements whose index would have to be expanded to the batch. The new key and value
+go in with ScatterElements: a step on base took 0.66-0.73 ms with it against 0.84-0.89 ms with a Where over the
+cache (1 thread, slot 40 of 63), and a position past the capacity is an error instead of a write to nowhere.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import torch
+import torch.nn as nn
+from torch.export import Dim
+
+from mogo_runtime.manifest import PORTABLE_OPSET
+
+from ..models.transformer import RQHCTransformer
+from .graphs import check_graph, export_module
+
+
+class FixedCacheStepGraph(nn.Module):
+    """`RQHCTransformer.step` for one time step, over a cache of `capacity` slots per layer (same weights).
+
+    Equal to the dynamic step with past = the first `position` slots (tests/export/test_portable.py); only the
+    softmax's sum runs over the masked slots too (exact zeros), which moves logits by a few 1e-6 (4e-6 on base).
+    """
+
+    def __init__(self, model: RQHCTransformer, capacity: int):
+        super().__init__()
+        self.model, self.capacity = model, capacity
+        c = model.cfg
+        self.levels, self.heads, self.head_dim = c.num_levels, c.n_heads, c.d_model // c.n_heads
+        self.register_buffer("slots", torch.arange(capacity), persistent=False)
+        self.register_buffer("distances", torch.arange(c.max_rel_dist + 1), persistent=False)
+        # + position: the scatter index of every (row, head, channel) of the new step, without a Shape op
+        self.register_buffer("slot_index", torch.zeros(1, c.num_levels * c.n_heads, 1, self.head_dim,
+                                                       dtype=torch.int64), persistent=False)
+
+    def forward(self, text_embedding, tokens, position, *past_flat):
+        m, c = self.model, self.model.cfg
+        L, H, hd, C = self.levels, self.heads, self.head_dim, c.d_model
+        LH = L * H
+        x = self._inputs(text_embedding, tokens)                                  # (B, L, C)
+        write = position[:, None, None, None] + self.slot_index                   # (B, LH, 1, hd)
+        dist = (position.unsqueeze(1) - self.slots)[:, None, None, :]             # (B, 1, 1, cap)
+        future = dist < 0                                                         # slots not yet written
+        # one-hot of the clipped distance of every slot: pos @ onehot^T picks phi's score at that distance
+        rel = dist.clamp(0, c.max_rel_dist).transpose(2, 3) == self.distances     # (B, 1, cap, R+1)
+        rel = rel.to(x.dtype)
+        presents = []
+        for i, block in enumerate(m.blocks):
+            a = block.attn
+            qkv = a.qkv(block.ln_1(x))                                            # (B, L, 3C)
+            # rows b*L + l, heads h -> the cache's layout [B, L*H, 1, hd] (row l*H + h), a pure reshape
+            q, k, v = (qkv[..., j * C:(j + 1) * C].reshape(-1, LH, 1, hd) for j in range(3))
+            present_k = past_flat[2 * i].scatter(2, write, k)                     # (B, LH, cap, hd)
+            present_v = past_flat[2 * i + 1].scatter(2, write, v)
+            u = a.u.repeat(L, 1).unsqueeze(1)                                     # (LH, 1, hd): head l*H+h -> u[h]
+            pv = a.v.repeat(L, 1).unsqueeze(1)
+            content = (q + u) @ present_k.transpose(2, 3)                         # (B, LH, 1, cap)
+            mask = a.head_mask.view(H, H, hd).repeat(L, 1, 1).unsqueeze(1)        # (LH, 1, H, hd)
+            qv = ((q + pv).unsqueeze(3) * mask).flatten(3)                        # (B, LH, 1, C)
+            pos_all = qv @ a.phi.t()                                              # (B, LH, 1, R+1)
+            pos = pos_all @ rel.transpose(2, 3)                                   # (B, LH, 1, cap)
+            att = (content + pos) * (1.0 / math.sqrt(hd))
+            att = att.masked_fill(future, float("-inf")).softmax(dim=-1)
+            y = (att @ present_v).reshape(-1, L, C)                               # (B, L, C)
+            x = x + a.proj(y)
+            x = x + block.mlp(block.ln_2(x))
+            presents += [present_k, present_v]
+        logits = m.head(m.ln_f(x)).unsqueeze(1)                                   # (B, 1, L, K+1)
+        return (logits, *presents)
+
+    def _inputs(self, text_emb, tokens):
+        """`RQHCTransformer._inputs` for one step, in (B, L, C): stream l of a BOS slot is the PnQ prefix, else
+        the sum of the embeddings of levels 0..l."""
+        m, c = self.model, self.model.cfg
+        tok = tokens[:, 0]                                                        # (B, L)
+        prefix = m.cond_proj(text_emb).unsqueeze(1) + m.q_emb                     # (B, L, C)
+        is_bos = (tok == c.bos_id).unsqueeze(-1)                                  # (B, L, 1)
+        emb = m.tok_emb(tok + m.level_offset)                                     # (B, L, C)
+        return torch.where(is_bos, prefix, emb.masked_fill(is_bos, 0.0).cumsum(dim=1))
+
+
+def export_portable_step(model: RQHCTransformer, path: Path, capacity: int, opset: int = PORTABLE_OPSET,
+                         metadata: dict | None = None) -> dict:
+    """step.portable.onnx (I/O in the module docstring); returns its I/O description."""
+    c = model.cfg
+    L, H, hd = c.num_levels, c.n_heads, c.d_model // c.n_heads
+    B = 2  # batch is the one dynamic dim: traced at >= 2 (a dim traced at 1 is silently fixed)
+    g = torch.Generator().manual_seed(0)
+    text = torch.randn(B, c.text_dim, generator=g)
+    tokens = torch.randint(0, c.codebook_size, (B, 1, L), generator=g)
+    position = torch.tensor([3, 5]) % capacity
+    past = [torch.randn(B, L * H, capacity, hd, generator=g) for _ in range(2 * c.n_layers)]
+    names_in, names_out = ["text_embedding", "tokens", "position"], ["logits"]
+    for i in range(c.n_layers):
+        names_in += [f"past_key_values.{i}.key", f"past_key_values.{i}.value"]
+        names_out += [f"present.{i}.key", f"present.{i}.value"]
+    batch = Dim("batch", min=1, max=1024)
+    dyn = ({0: batch}, {0: batch}, {0: batch}, tuple({0: batch} for _ in past))
+    export_module(FixedCacheStepGraph(model, capacity), (text, tokens, position, *past), path, names_in, names_out,
+                  dyn, opset, metadata or {})
+    cache = ["batch", L * H, capacity, hd]
+    expected = {"text_embedding": ["batch", c.text_dim], "tokens": ["batch", 1, L], "position": ["batch"],
+                "logits": ["batch", 1, L, c.codebook_size + 1],
+                **{name: cache for name in names_in[3:] + names_out[1:]}}
+    return check_graph(path, expected)
