@@ -305,3 +305,41 @@ function sharedPrefix(a, b) {
 function rows(flat, levels) {
   return Array.from({ length: flat.length / levels }, (_, t) => flat.slice(t * levels, (t + 1) * levels));
 }
+
+// The golden tokens (tests/golden/toy.json) in the browser: the JavaScript runtime on onnxruntime-web (wasm) in
+// the page's own context, every golden case on the toy bundle, exactly the stored tokens.
+test('the browser gives the golden tokens', { timeout: 300_000 }, async () => {
+  assert.ok(reference.bundles.toy, 'the toy bundle is served');
+  const golden = JSON.parse(readFileSync(join(ROOT, 'tests/golden/toy.json'), 'utf8'));
+  const manifest = JSON.parse(readFileSync(join(reference.bundles.toy.path, 'manifest.json'), 'utf8'));
+  for (const [file, sha256] of Object.entries(golden.files)) {
+    assert.equal(manifest.files[file]?.sha256, sha256, `${file}: the toy bundle changed since tests/golden/toy.json was written`);
+  }
+  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy`);
+  const result = await page.evaluate(async (cases) => {
+    const ort = await import('/web/node_modules/onnxruntime-web/dist/ort.wasm.min.mjs');
+    ort.env.wasm.wasmPaths = '/web/node_modules/onnxruntime-web/dist/';
+    ort.env.wasm.numThreads = 1;
+    const { MotionGenerator, urlLoader } = await import('/js/src/index.js');
+    const gens = {};
+    const wrong = [];
+    let steps = 0;
+    for (const [i, c] of cases.entries()) {
+      gens[c.variant] ??= await MotionGenerator.load(urlLoader('/test-bundles/toy/'), { ort, variant: c.variant, threads: 1 });
+      const gen = gens[c.variant];
+      const s = c.sampling;
+      const sampling = { temperature: s.temperature, topK: s.top_k ?? null, topP: s.top_p ?? null, guidance: s.guidance ?? 1 };
+      const out = await gen.generate(c.text, { seconds: c.seconds ?? null, seed: BigInt(c.seed), sampling });
+      const L = gen.dims.numLevels;
+      const got = (Array.isArray(out) ? out : [out]).map((m) => Array.from(
+        { length: m.tokens.data.length / L }, (_, t) => Array.from(m.tokens.data.slice(t * L, (t + 1) * L))));
+      steps += c.tokens.reduce((n, t) => n + t.length, 0);
+      if (JSON.stringify(got) !== JSON.stringify(c.tokens)) wrong.push(i);
+    }
+    return { wrong, steps };
+  }, golden.cases);
+  console.log(`web: golden: ${golden.cases.length - result.wrong.length} of ${golden.cases.length} cases (${result.steps} time steps) identical to tests/golden/toy.json in Chromium`);
+  assert.deepEqual(result.wrong, [], `golden cases ${result.wrong.slice(0, 5).join(', ')} differ in the browser`);
+  assert.deepEqual(problems, [], 'errors in the page');
+  await page.close();
+});
