@@ -6,7 +6,7 @@
 // `mogo.<field>` facts in each graph are not compared with the manifest here (the I/O names, element types,
 // ranks and the logits' width are).
 
-import { BundleError, parseManifest } from './manifest.js';
+import { BundleError, graphSpec, parseManifest } from './manifest.js';
 import { sha256Hex } from './io.js';
 
 const MANIFEST_MAX_BYTES = 16 << 20;   // a real manifest is ~30 KB; refuse to parse anything huge
@@ -63,8 +63,8 @@ export class Bundle {
    * An onnxruntime session of `graph` declares the inputs and outputs (names; element types and ranks where
    * the binding reports them) that the manifest lists.
    */
-  checkSession(graph, file, session) {
-    const spec = this.manifest.graphs[graph];
+  checkSession(graph, file, session, variant) {
+    const spec = graphSpec(this.manifest, graph, variant);
     const path = `${this.where.replace(/\/$/, '')}/${file}`;
     for (const [kind, names, metadata] of [['inputs', session.inputNames, session.inputMetadata],
       ['outputs', session.outputNames, session.outputMetadata]]) {

@@ -7,7 +7,7 @@
 // the range of the whole input tensor, so in a batch a row's numbers would depend on its neighbours
 // (docs/bundle.md, the generation loop, step 3). Their cache is then one list of tensors per row.
 
-import { BundleError, GRAPHS, graphFile } from './manifest.js';
+import { BundleError, GRAPHS, fixedCache, graphFile } from './manifest.js';
 import { Tokenizer } from './tokenizer.js';
 import { createSession } from './io.js';
 
@@ -44,7 +44,7 @@ export class OrtBackend {
       } catch (e) {
         throw new BundleError(`${bundle.where.replace(/\/$/, '')}/${file}: onnxruntime cannot load it (${e.message})`);
       }
-      bundle.checkSession(graph, file, sessions[graph]);
+      bundle.checkSession(graph, file, sessions[graph], variant);
     }
     const rowByRow = new Set(GRAPHS.filter((g) => graphFile(manifest, g, variant).quantized));
     return new OrtBackend(ort, manifest, variant, tokenizer, sessions, rowByRow);
@@ -59,6 +59,8 @@ export class OrtBackend {
     this.sessions = sessions;
     this.rowByRow = rowByRow;   // graphs that run one row per call (the quantized ones)
     this.cacheHeads = this.dims.numLevels * this.dims.nHeads;   // past: [rows, L * n_heads, past, head_dim]
+    // the portable variant: one time step per call into a cache of fixed capacity, written at `position`
+    this.capacity = fixedCache(manifest, variant) ? manifest.portable.capacity : null;
   }
 
   /** Prompts -> (N, text_dim) float32 embeddings, 64 prompts per call (one per call when quantized). */
@@ -83,6 +85,11 @@ export class OrtBackend {
 
   /** The cache of `rows` rows before the first step: every past tensor empty. */
   emptyPast(rows) {
+    if (this.capacity !== null) {   // one zero buffer serves every layer: the graph returns new tensors
+      const zeros = new this.ort.Tensor('float32', new Float32Array(rows * this.cacheHeads * this.capacity * this.dims.headDim),
+        [rows, this.cacheHeads, this.capacity, this.dims.headDim]);
+      return { tensors: this.manifest.pastNames.map(() => zeros), length: 0 };
+    }
     const one = (n) => {
       const empty = new this.ort.Tensor('float32', new Float32Array(0), [n, this.cacheHeads, 0, this.dims.headDim]);
       return this.manifest.pastNames.map(() => empty);
@@ -99,6 +106,7 @@ export class OrtBackend {
    * @returns {Promise<{logits: Float32Array, past: object}>} logits (rows, steps, L, K + 1)
    */
   async step(textEmb, tokens, rows, past) {
+    if (this.capacity !== null) return this.#fixedStep(textEmb, tokens, rows, past);
     if (!this.rowByRow.has('step')) return this.#step(textEmb, tokens, rows, past);
     const E = this.dims.textDim, perRow = tokens.length / rows;
     const outs = [];
@@ -117,6 +125,29 @@ export class OrtBackend {
     this.manifest.pastNames.forEach((name, i) => { feed[name] = past[i]; });
     const out = await this.sessions.step.run(feed);
     return { logits: out.logits.data, past: this.manifest.presentNames.map((name) => out[name]) };
+  }
+
+  /** The portable step: S tokens are S calls, each writing its slot; logits come back as (rows, S, L, K + 1). */
+  async #fixedStep(textEmb, tokens, rows, past) {
+    const L = this.dims.numLevels, S = tokens.length / (rows * L), V = this.dims.codebookSize + 1;
+    if (past.length + S > this.capacity) {
+      throw new RangeError(`the portable step's cache holds ${this.capacity} steps; ${past.length} are cached and ${S} `
+        + "more were fed (the manifest's portable.capacity covers the generation loop)");
+    }
+    const text = new this.ort.Tensor('float32', textEmb, [rows, this.dims.textDim]);
+    const logits = new Float32Array(rows * S * L * V);
+    let cache = past.tensors;
+    for (let s = 0; s < S; s++) {
+      const ids = new BigInt64Array(rows * L);
+      for (let r = 0; r < rows; r++) for (let l = 0; l < L; l++) ids[r * L + l] = BigInt(tokens[(r * S + s) * L + l]);
+      const feed = { text_embedding: text, tokens: new this.ort.Tensor('int64', ids, [rows, 1, L]),
+        position: new this.ort.Tensor('int64', new BigInt64Array(rows).fill(BigInt(past.length + s)), [rows]) };
+      this.manifest.pastNames.forEach((name, i) => { feed[name] = cache[i]; });
+      const out = await this.sessions.step.run(feed);
+      for (let r = 0; r < rows; r++) logits.set(out.logits.data.subarray(r * L * V, (r + 1) * L * V), (r * S + s) * L * V);
+      cache = this.manifest.presentNames.map((name) => out[name]);
+    }
+    return { logits, past: { tensors: cache, length: past.length + S } };
   }
 
   /**

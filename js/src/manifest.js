@@ -157,9 +157,42 @@ export function parseManifest(data, where) {
     variants: parseVariants(f.sub('variants')),
     tca: f.get('tca', null) === null ? null : f.sub('tca').obj,
     streaming: f.get('streaming', null) === null ? null : parseStreaming(f.sub('streaming'), model),
+    portable: f.get('portable', null) === null ? null : parsePortable(f.sub('portable')),
+    ort: f.get('ort', null) === null ? null : parseOrt(f.sub('ort')),
   };
   checkAgreement(manifest, where);
   return deepFreeze(manifest);
+}
+
+/** The portable variant's step graph (docs/bundle.md, "The portable variant"): a cache of `capacity` slots. */
+function parsePortable(f) {
+  const capacity = f.get('capacity', null);
+  if (!Number.isInteger(capacity) || capacity < 1) f.fail('capacity', `expected an integer >= 1, got ${show(capacity)}`);
+  return { capacity, opset: f.get('opset', null), step: parseGraph(f.sub('step')) };
+}
+
+/** ORT-format variants and the variant each was converted from. */
+function parseOrt(f) {
+  const variants = f.get('variants', null);
+  if (variants === null || typeof variants !== 'object' || Array.isArray(variants)) {
+    f.fail('variants', `expected an object, got ${kind(variants)}`);
+  }
+  return { variants: { ...variants }, requiredOperators: f.get('required_operators', null) };
+}
+
+/** The variant an ORT-format variant was converted from; any other variant is its own source. */
+export function sourceVariant(manifest, variant) {
+  return manifest.ort?.variants[variant] ?? variant;
+}
+
+/** Whether the variant's step graph is the portable one (fixed-capacity cache, `position` input). */
+export function fixedCache(manifest, variant) {
+  return manifest.portable !== null && sourceVariant(manifest, variant) === 'portable';
+}
+
+/** The inputs and outputs a variant's graph has: the portable step's differ from `graphs.step`. */
+export function graphSpec(manifest, graph, variant) {
+  return graph === 'step' && fixedCache(manifest, variant) ? manifest.portable.step : manifest.graphs[graph];
 }
 
 /** The file and quantization of one graph of one variant; throws for an unknown variant. */
