@@ -30,21 +30,8 @@ else
   trap 'rm -rf "$WORK"' EXIT
 fi
 
-"$PY" - "$ROOT" "$WORK" <<'EOF'
-import sys
-from pathlib import Path
-
-import numpy as np
-
-root, work = Path(sys.argv[1]), Path(sys.argv[2])
-sys.path.insert(0, str(root / "tests" / "runtime"))
-from toy_bundle import build_toy_bundle  # noqa: E402
-
-mean = np.load(root.parent / "shared" / "fixtures" / "humanml3d" / "Mean.npy")
-build_toy_bundle(work / "toy", mean)
-build_toy_bundle(work / "toy-clips", mean, seed=1, streaming=False)
-print(f"toy bundles built in {work}")
-EOF
+"$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/toy"
+"$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/toy-clips" --seed 1 --clips
 
 BUNDLES=(--bundle "toy=$WORK/toy" --bundle "toy-clips=$WORK/toy-clips")
 if [ "${MOGO_JS_TINY:-0}" = "1" ]; then

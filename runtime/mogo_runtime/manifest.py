@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import PurePosixPath
 
 from .features import FeatureLayout
+from .jsonfields import BundleError, Fields, kind
 from .sampling import SamplingConfig
 from .skeleton import SKELETONS, Skeleton
 
@@ -31,65 +32,6 @@ PORTABLE_OPSET = 17            # its graphs' opset: this or lower (LayerNormaliz
 ORT_SUFFIX = ".ort"            # graph files in onnxruntime's ORT format (section `ort`)
 NORMALIZATION = "decoder-output-denormalised"   # decoder.onnx multiplies by Std and adds Mean itself
 _SHA256 = re.compile(r"[0-9a-f]{64}")
-
-
-class BundleError(ValueError):
-    """A bundle that cannot be used: the message names the file and the field."""
-
-
-class _Fields:
-    """Typed reads from one JSON object; every failure names the file and the dotted field path."""
-
-    def __init__(self, obj, where: str, path: str = ""):
-        self.where, self.path = where, path
-        if not isinstance(obj, dict):
-            name = f"field {path}" if path else "the manifest"
-            raise BundleError(f"{where}: {name}: must be a JSON object, got {_kind(obj)}")
-        self.obj = obj
-
-    def _name(self, key) -> str:
-        return ".".join(p for p in (self.path, key) if p)
-
-    def fail(self, key, message: str):
-        raise BundleError(f"{self.where}: field {self._name(key)}: {message}")
-
-    def get(self, key, default=...):
-        if key not in self.obj:
-            if default is ...:
-                self.fail(key, "missing")
-            return default
-        return self.obj[key]
-
-    def int(self, key, lo: int = 0, hi: int = 2 ** 31, default=...) -> int:
-        v = self.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-            self.fail(key, f"expected an integer in [{lo}, {hi}], got {v!r}")
-        return v
-
-    def num(self, key, lo: float, hi: float, default=...) -> float:
-        v = self.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo < v <= hi:
-            self.fail(key, f"expected a number in ({lo:g}, {hi:g}], got {v!r}")
-        return float(v)
-
-    def str(self, key, default=...) -> str:
-        v = self.get(key, default)
-        if not isinstance(v, str) or not v:
-            self.fail(key, f"expected a non-empty string, got {v!r}")
-        return v
-
-    def sub(self, key, default=...) -> "_Fields":
-        return _Fields(self.get(key, default), self.where, self._name(key))
-
-    def list(self, key) -> list:
-        v = self.get(key)
-        if not isinstance(v, list):
-            self.fail(key, f"expected a list, got {_kind(v)}")
-        return v
-
-
-def _kind(v) -> str:
-    return "null" if v is None else type(v).__name__
 
 
 def _json(v) -> str:
@@ -143,7 +85,7 @@ class ModelDims(SpecialTokens):
                 "bos_id": self.bos_id, "pad_id": self.pad_id}
 
     @classmethod
-    def parse(cls, f: _Fields) -> "ModelDims":
+    def parse(cls, f: Fields) -> "ModelDims":
         dims = cls(**{x.name: f.num(x.name, 0, 1000) if x.name == "fps" else
                       f.int(x.name, lo=0 if x.name == "receptive_field" else 1) for x in fields(cls)})
         for key, want in (("end_id", dims.end_id), ("bos_id", dims.bos_id), ("pad_id", dims.pad_id),
@@ -160,7 +102,7 @@ class TensorSpec:
     shape: tuple                     # ints, or strings for symbolic dims
 
     @classmethod
-    def parse(cls, f: _Fields) -> "TensorSpec":
+    def parse(cls, f: Fields) -> "TensorSpec":
         dtype, shape = f.str("dtype"), f.list("shape")
         if dtype not in DTYPES:
             f.fail("dtype", f"expected one of {sorted(DTYPES)}, got {dtype!r}")
@@ -176,10 +118,10 @@ class GraphSpec:
     outputs: tuple[TensorSpec, ...]
 
     @classmethod
-    def parse(cls, f: _Fields) -> "GraphSpec":
+    def parse(cls, f: Fields) -> "GraphSpec":
         io = {}
         for kind in ("inputs", "outputs"):
-            specs = [TensorSpec.parse(_Fields(d, f.where, f"{f.path}.{kind}[{i}]")) for i, d in enumerate(f.list(kind))]
+            specs = [TensorSpec.parse(Fields(d, f.where, f"{f.path}.{kind}[{i}]")) for i, d in enumerate(f.list(kind))]
             names = [s.name for s in specs]
             if not specs or len(set(names)) != len(names):
                 f.fail(kind, f"expected a non-empty list of distinct names, got {names}")
@@ -328,7 +270,7 @@ class Manifest:
     @classmethod
     def parse(cls, data, where: str) -> "Manifest":
         """Check and type a manifest read from JSON; `where` (the file) starts every error message."""
-        f = _Fields(data, where)
+        f = Fields(data, where)
         if f.get("schema", None) != SCHEMA:
             f.fail("schema", f"is {f.get('schema', None)!r}, expected {SCHEMA!r} (not a mogo bundle)")
         if f.get("schema_version", None) != SCHEMA_VERSION:
@@ -336,7 +278,7 @@ class Manifest:
                                      f"{SCHEMA_VERSION} (re-export the bundle with `mogo-export export`)")
         producer = f.get("producer", {})
         if not isinstance(producer, dict):
-            f.fail("producer", f"expected an object, got {_kind(producer)}")
+            f.fail("producer", f"expected an object, got {kind(producer)}")
         model = ModelDims.parse(f.sub("model"))
         skeleton = _parse_skeleton(f.sub("skeleton"), f.sub("features"), model)
         streaming = None if f.get("streaming", None) is None else _parse_streaming(f.sub("streaming"), model)
@@ -430,7 +372,7 @@ class Manifest:
                                       f"{source!r}, which it was converted from")
 
 
-def _parse_skeleton(f: _Fields, features: _Fields, model: ModelDims) -> Skeleton:
+def _parse_skeleton(f: Fields, features: Fields, model: ModelDims) -> Skeleton:
     """The skeleton must be one this runtime knows, stored exactly (as Skeleton.to_dict writes it): the joints
     code relies on its tables."""
     name = f.str("name")
@@ -448,7 +390,7 @@ def _parse_skeleton(f: _Fields, features: _Fields, model: ModelDims) -> Skeleton
     return skeleton
 
 
-def _parse_normalization(f: _Fields, model: ModelDims) -> Normalization:
+def _parse_normalization(f: Fields, model: ModelDims) -> Normalization:
     if f.str("mode") != NORMALIZATION:
         f.fail("mode", f"expected {NORMALIZATION!r}, got {f.get('mode')!r}")
     stats = {}
@@ -461,13 +403,13 @@ def _parse_normalization(f: _Fields, model: ModelDims) -> Normalization:
     return Normalization(**stats)
 
 
-def _parse_text_encoder(f: _Fields) -> TextEncoderSpec:
+def _parse_text_encoder(f: Fields) -> TextEncoderSpec:
     if f.str("pooling", "mean") != "mean":
         f.fail("pooling", f"only mean pooling is supported, got {f.get('pooling')!r}")
     return TextEncoderSpec(name=f.str("name"), tokenizer=f.str("tokenizer"), max_length=f.int("max_length", 2, 65536))
 
 
-def _parse_sampling(f: _Fields) -> SamplingConfig:
+def _parse_sampling(f: Fields) -> SamplingConfig:
     unknown = set(f.obj) - {x.name for x in fields(SamplingConfig)}
     if unknown:
         f.fail(sorted(unknown)[0], "unknown sampling setting")
@@ -477,7 +419,7 @@ def _parse_sampling(f: _Fields) -> SamplingConfig:
         raise BundleError(f"{f.where}: field {f.path}: {e}") from None
 
 
-def _parse_cache(f: _Fields) -> CacheNames:
+def _parse_cache(f: Fields) -> CacheNames:
     cache = CacheNames(past=f.str("past"), present=f.str("present"))
     for key in ("past", "present"):
         template = getattr(cache, key)
@@ -490,7 +432,7 @@ def _parse_cache(f: _Fields) -> CacheNames:
     return cache
 
 
-def _parse_files(f: _Fields) -> dict[str, tuple[int, str]]:
+def _parse_files(f: Fields) -> dict[str, tuple[int, str]]:
     files = {}
     for name in f.obj:
         entry = f.sub(name)
@@ -507,7 +449,7 @@ def _parse_files(f: _Fields) -> dict[str, tuple[int, str]]:
     return files
 
 
-def _parse_variants(f: _Fields) -> dict[str, dict[str, GraphFile]]:
+def _parse_variants(f: Fields) -> dict[str, dict[str, GraphFile]]:
     if "fp32" not in f.obj:
         f.fail("fp32", "missing: every bundle has the fp32 variant")
     variants = {}
@@ -518,13 +460,13 @@ def _parse_variants(f: _Fields) -> dict[str, dict[str, GraphFile]]:
             e = graphs.sub(g)
             q = e.get("quantization", None)
             if q is not None and not isinstance(q, dict):
-                e.fail("quantization", f"expected an object or null, got {_kind(q)}")
+                e.fail("quantization", f"expected an object or null, got {kind(q)}")
             entries[g] = GraphFile(file=e.str("file"), quantization=q or None)
         variants[v] = entries
     return variants
 
 
-def _parse_portable(f: _Fields, model: ModelDims, streaming: StreamingSpec | None) -> PortableSpec:
+def _parse_portable(f: Fields, model: ModelDims, streaming: StreamingSpec | None) -> PortableSpec:
     need = required_capacity(model, streaming)
     capacity = f.get("capacity")
     if isinstance(capacity, int) and not isinstance(capacity, bool) and 1 <= capacity < need:
@@ -534,7 +476,7 @@ def _parse_portable(f: _Fields, model: ModelDims, streaming: StreamingSpec | Non
                         step=GraphSpec.parse(f.sub("step")))
 
 
-def _parse_ort(f: _Fields) -> OrtFormat:
+def _parse_ort(f: Fields) -> OrtFormat:
     variants = f.sub("variants")
     if not variants.obj:
         f.fail("variants", "expected at least one ORT-format variant")
@@ -542,7 +484,7 @@ def _parse_ort(f: _Fields) -> OrtFormat:
                      variants={v: variants.str(v) for v in variants.obj}, onnxruntime=f.str("onnxruntime"))
 
 
-def _parse_streaming(f: _Fields, model: ModelDims) -> StreamingSpec:
+def _parse_streaming(f: Fields, model: ModelDims) -> StreamingSpec:
     spec = StreamingSpec(window=f.int("window", 1), refresh=f.int("refresh", 1))
     if spec.window + spec.refresh > model.max_rel_dist:   # as trained: every distance to the prefix is distinct
         f.fail("refresh", f"window + refresh is {spec.window + spec.refresh}, more than model.max_rel_dist "

@@ -307,3 +307,16 @@ def portable_toy_bundle(tmp_path_factory, humanml3d_fixture) -> Path:
     """The toy bundle with the portable variant and the ORT-format variants int8_ort and portable_ort."""
     return build_toy_bundle(tmp_path_factory.mktemp("portable_toy_bundle"), np.load(humanml3d_fixture / "Mean.npy"),
                             portable=True, ort=True)
+
+
+if __name__ == "__main__":   # js/test/run.sh and web/test/run.sh: python tests/runtime/toy_bundle.py OUT [--seed N] [--clips]
+    import argparse
+
+    ap = argparse.ArgumentParser(description="build the toy bundle (the HumanML3D fixture's Mean.npy beside the repo)")
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--clips", action="store_true", help="no streaming section: a bundle of single clips")
+    args = ap.parse_args()
+    mean = np.load(Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "humanml3d" / "Mean.npy")
+    build_toy_bundle(args.out, mean, seed=args.seed, streaming=not args.clips)
+    print(f"toy bundle built in {args.out}")

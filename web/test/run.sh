@@ -40,19 +40,12 @@ fi
 WORK="$(mktemp -d)"
 trap 'rm -rf "$WORK"' EXIT
 
-"$PY" - "$ROOT" "$WORK" <<'EOF'
+"$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/bundles/toy"
+"$PY" - "$WORK" <<'EOF'
 import sys
 from pathlib import Path
 
-import numpy as np
-
-root, work = Path(sys.argv[1]), Path(sys.argv[2])
-sys.path.insert(0, str(root / "tests" / "runtime"))
-from toy_bundle import build_toy_bundle  # noqa: E402
-
-mean = np.load(root.parent / "shared" / "fixtures" / "humanml3d" / "Mean.npy")
-build_toy_bundle(work / "bundles" / "toy", mean)
-
+work = Path(sys.argv[1])
 # the same bundle with two variants the page does not know: `portable` (here the fp32 graphs, so the page's runtime
 # runs it and must offer it) and `broken` (a step graph onnxruntime cannot read: not offered, named)
 import hashlib, json, shutil  # noqa: E401,E402
