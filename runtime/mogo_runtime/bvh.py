@@ -1,22 +1,15 @@
-"""BVH export: joint positions in metres -> a BVH file whose forward kinematics reproduce them (inverse kinematics).
+"""BVH export: joint positions in metres -> a BVH file whose forward kinematics reproduce them.
 
-Hierarchy and joint names come from the `Skeleton`; every joint has rest rotation identity (the BVH convention), so
-its OFFSET is its rest bone vector in world axes (y up, the body faces +z): the skeleton's rest direction with the
-bone length measured on the clip (median over frames), so a clip on a skeleton of another size is still reproduced.
-Where a joint has several children (pelvis, spine3) their layout is a fact of the clip too (HumanML3D's hips are 69
-degrees apart seen from the pelvis, not the 180 of the rest directions): the rigid shape that best fits all frames
-(generalised Procrustes), turned to lie as close as it can to the rest directions. Such a joint gets the best-fit
-(Kabsch) rotation of its children's offsets onto the observed bones; a joint with one child gets the smallest
-rotation, in its parent's frame, that swings its rest bone onto the observed one (no twist), except near the one
-direction where that swing is undefined (bone opposite its rest direction, e.g. an arm straight up): there the twist
-is carried over from the previous frame and then relaxed back to zero, so nothing flips. Leaves keep their parent's
-rotation. Euler angles are intrinsic, in degrees, in the order the CHANNELS line lists them: the root's `Yrotation
-Xrotation Zrotation` (R = Ry @ Rx @ Rz, heading first), every other joint's `Zrotation Yrotation Xrotation` (R = Rz @
-Ry @ Rx; ROOT_ORDER / JOINT_ORDER say why), continuous over time (of the two Euler triples of each rotation the one
-nearest the previous frame, then unwrapped: no 180 or 360 degree jumps). The root has position channels and OFFSET
-0 0 0, so the channels are its world position whatever a reader does with root offsets. The file is in centimetres
-(`units="cm"`, the default, what most tools expect) or metres (`units="m"`); BVH has no comment syntax, so only the
-caller's choice of `units` states which.
+Hierarchy and joint names come from the `Skeleton` (or a retargeted rig: `rotations_to_bvh_text`); every joint has
+rest rotation identity (the BVH convention), so its OFFSET is its rest bone vector in world axes (y up, the body faces
++z). The rotations are `ik.local_rotations` of the positions (see ik.py for how the rest pose is fitted to the clip).
+Euler angles are intrinsic, in degrees, in the order the CHANNELS line lists them: the root's `Yrotation Xrotation
+Zrotation` (R = Ry @ Rx @ Rz, heading first), every other joint's `Zrotation Yrotation Xrotation` (R = Rz @ Ry @ Rx;
+ROOT_ORDER / JOINT_ORDER say why), continuous over time (of the two Euler triples of each rotation the one nearest the
+previous frame, then unwrapped: no 180 or 360 degree jumps). The root has position channels and OFFSET 0 0 0, so the
+channels are its world position whatever a reader does with root offsets. The file is in centimetres (`units="cm"`,
+the default, what most tools expect) or metres (`units="m"`); BVH has no comment syntax, so only the caller's choice
+of `units` states which.
 """
 from __future__ import annotations
 
@@ -25,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from .files import write_atomic
-from .skeleton import HUMANML3D, Skeleton, check_fps
+from .ik import axis_angle, local_rotations, rest_offsets
+from .skeleton import HUMANML3D, Skeleton, check_fps, children_of, depth_first
 
 _UNIT_SCALE = {"cm": 100.0, "m": 1.0}
 # Intrinsic Euler orders (R = R_first @ R_mid @ R_last), chosen so gimbal lock (middle angle +-90) needs a
@@ -33,7 +27,6 @@ _UNIT_SCALE = {"cm": 100.0, "m": 1.0}
 # other joints, whose rest bones lie along y or z, swinging a bone 180 degrees or a foot/head 90 sideways.
 ROOT_ORDER = "YXZ"
 JOINT_ORDER = "ZYX"
-_TWIST_RELAX_S = 0.25  # time constant (seconds) for a carried-over twist to relax back to the swing
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -41,16 +34,26 @@ _TWIST_RELAX_S = 0.25  # time constant (seconds) for a carried-over twist to rel
 
 def joints_to_bvh_text(joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, units: str = "cm") -> str:
     """BVH text for `joints` (T, J, 3) in metres (y up), written in `units` ("cm" or "m") at `fps`."""
-    if units not in _UNIT_SCALE:
-        raise ValueError(f"units must be one of {sorted(_UNIT_SCALE)}, got {units!r}")
+    _check_units(units)
     fps = check_fps(fps)
     pos = skeleton.check_joints(joints, count=True)
     offsets = rest_offsets(pos, skeleton)
-    local = _local_rotations(pos, skeleton, offsets, fps)              # (T, J, 3, 3)
-    root = skeleton.root
+    local = local_rotations(pos, skeleton, offsets, fps)               # (T, J, 3, 3)
+    return rotations_to_bvh_text(skeleton.joint_names, skeleton.parents, offsets, pos[:, skeleton.root], local,
+                                 fps, units, what=f"skeleton {skeleton.name!r}")
+
+
+def rotations_to_bvh_text(names, parents, offsets, root_positions, local, fps: float, units: str = "cm",
+                          what: str = "hierarchy") -> str:
+    """BVH text for a hierarchy (joint `names`, `parents` with -1 for the root) whose rest bone vectors are
+    `offsets` (J, 3) in world axes, metres; the root at `root_positions` (T, 3) metres and every joint turned by
+    `local` (T, J, 3, 3), its rotation relative to its parent's, both measured from the rest pose."""
+    _check_units(units)
+    fps = check_fps(fps)
+    root = parents.index(-1)
     euler = np.degrees(_continuous_euler(local, JOINT_ORDER))          # (T, J, 3) in channel order
     euler[:, root] = np.degrees(_continuous_euler(local[:, root:root + 1], ROOT_ORDER))[:, 0]
-    return _format(pos, offsets, euler, skeleton, fps, _UNIT_SCALE[units])
+    return _format(names, parents, offsets, root_positions, euler, fps, _UNIT_SCALE[units], what)
 
 
 def write_bvh(path, joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, units: str = "cm") -> Path:
@@ -59,131 +62,9 @@ def write_bvh(path, joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, u
     return write_atomic(Path(path), lambda f: f.write(data))
 
 
-def rest_offsets(joints, skeleton: Skeleton = HUMANML3D) -> np.ndarray:
-    """(J, 3) rest bone vectors (metres) fitted to a clip `joints` (T, J, 3); see the module docstring."""
-    pos = skeleton.check_joints(joints, count=True)
-    raw = np.asarray(skeleton.raw_offsets, dtype=np.float64)
-    offsets = np.zeros((skeleton.num_joints, 3))
-    for j, p in enumerate(skeleton.parents):
-        if p < 0:
-            continue
-        norm = np.linalg.norm(raw[j])
-        if norm == 0:
-            raise ValueError(f"skeleton {skeleton.name!r}: joint {skeleton.joint_names[j]!r} has a zero rest direction")
-        length = np.median(np.linalg.norm(pos[:, j] - pos[:, p], axis=-1))
-        if length < 1e-6:
-            raise ValueError(f"bone {skeleton.joint_names[p]!r} -> {skeleton.joint_names[j]!r} has zero length "
-                             f"in the clip (median over frames); cannot build a skeleton")
-        offsets[j] = raw[j] / norm * length
-    for j, ch in enumerate(skeleton.children):
-        if len(ch) < 2:
-            continue
-        bones = pos[:, ch] - pos[:, None, j]                            # (T, k, 3)
-        shape = offsets[ch]
-        for _ in range(3):  # exact after one pass on rigid data; more passes for noisy clips
-            rot = _kabsch(shape[None], bones)                           # (T, 3, 3): rot @ shape ~ bones
-            shape = np.einsum("tji,tkj->ki", rot, bones) / len(bones)   # mean of rot^T @ bones
-        # Turn the measured shape to lie as near the skeleton's rest directions as it can.
-        offsets[ch] = shape @ _kabsch(shape[None], offsets[None, ch])[0].T
-    return offsets
-
-
-# ----------------------------------------------------------------------------------------------------
-# inverse kinematics
-
-def _local_rotations(pos: np.ndarray, skeleton: Skeleton, offsets: np.ndarray, fps: float) -> np.ndarray:
-    T, J, _ = pos.shape
-    children = skeleton.children
-    glob = np.zeros((T, J, 3, 3))
-    local = np.zeros((T, J, 3, 3))
-    eye = np.broadcast_to(np.eye(3), (T, 3, 3))
-    relax = float(np.exp(-1.0 / (fps * _TWIST_RELAX_S)))
-    for j in skeleton.depth_first():
-        p = skeleton.parents[j]
-        parent = glob[:, p] if p >= 0 else eye
-        ch = children[j]
-        bones = pos[:, ch] - pos[:, None, j]                            # (T, k, 3)
-        if len(ch) >= 2 and not _collinear(offsets[ch]):
-            glob[:, j] = _kabsch(offsets[None, ch], bones)
-            local[:, j] = np.swapaxes(parent, -1, -2) @ glob[:, j]
-        elif ch:  # one child, or children on one line: the first one sets the rotation
-            d = np.einsum("tji,tj->ti", parent, bones[:, 0])            # the bone in the parent's frame
-            local[:, j] = _swing_with_continuous_twist(offsets[ch[0]], d, relax)
-            glob[:, j] = parent @ local[:, j]
-        else:
-            local[:, j] = np.eye(3)
-            glob[:, j] = parent
-    return local
-
-
-def _swing_with_continuous_twist(u: np.ndarray, d: np.ndarray, relax: float) -> np.ndarray:
-    """(T, 3, 3) rotations taking direction u to each d[t]: the pure swing, with a twist about u only
-    where the swing jumps (d near -u); that twist follows the bone over time and decays by `relax`/frame."""
-    u = u / np.linalg.norm(u)
-    d = _normalise(d, fallback=u)
-    swing = _min_rotation(np.broadcast_to(u, d.shape), d)              # (T, 3, 3)
-    # How much twist (about u) carrying the previous frame's rotation along the bone's motion adds
-    # on top of the swing: Tw(delta_t) = swing_t^T @ M_t @ swing_{t-1}, M_t the min rotation d_{t-1} -> d_t.
-    carry = _min_rotation(d[:-1], d[1:])
-    tw = np.swapaxes(swing[1:], -1, -2) @ carry @ swing[:-1]           # (T-1, 3, 3), each fixes u
-    w = _perpendicular(u)
-    tw_w = tw @ w
-    delta = np.arctan2(np.cross(w, tw_w) @ u, tw_w @ w)
-    near_flip = (d @ u) < -0.7                                          # swing is ill-conditioned there
-    theta = np.zeros(len(d))
-    for t in range(1, len(d)):
-        theta[t] = theta[t - 1] + delta[t - 1]
-        theta[t] = (theta[t] + np.pi) % (2 * np.pi) - np.pi
-        if not near_flip[t]:
-            theta[t] *= relax
-    return swing @ _axis_angle(u, theta)
-
-
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Rotations R (..., 3, 3) minimising sum_k |R @ src[..., k, :] - dst[..., k, :]|^2."""
-    h = np.swapaxes(src, -1, -2) @ dst                                  # sum_k src_k dst_k^T
-    u, _, vt = np.linalg.svd(h)
-    v, ut = np.swapaxes(vt, -1, -2), np.swapaxes(u, -1, -2)
-    flip = np.sign(np.linalg.det(v @ ut))
-    flip = np.where(flip == 0, 1.0, flip)
-    v = v.copy()
-    v[..., :, 2] *= flip[..., None]
-    return v @ ut
-
-
-def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) smallest rotations taking unit vectors a[n] to b[n] (any half-turn axis if b = -a)."""
-    axis = np.cross(a, b)
-    sin = np.linalg.norm(axis, axis=-1)
-    cos = np.einsum("ni,ni->n", a, b)
-    axis = np.where(sin[:, None] > 1e-12, axis / np.maximum(sin, 1e-300)[:, None], _perpendicular(a))
-    return _axis_angle(axis, np.arctan2(sin, cos))
-
-
-def _axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rodrigues: (N, 3, 3) rotations by angle[n] about unit axis[n] (axis (N, 3), or (3,) for all)."""
-    x, y, z = np.broadcast_to(axis, (len(angle), 3)).T
-    k = np.zeros((len(angle), 3, 3))
-    k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -z, y, -x
-    k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = z, -y, x
-    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
-    return np.eye(3) + s * k + (1 - c) * (k @ k)
-
-
-def _perpendicular(u: np.ndarray) -> np.ndarray:
-    """Unit vectors (..., 3) perpendicular to u (..., 3)."""
-    helper = np.where(np.abs(u[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    return _normalise(np.cross(u, helper), fallback=np.array([0.0, 0.0, 1.0]))
-
-
-def _normalise(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.where(n > 1e-12, v / np.maximum(n, 1e-300), fallback)
-
-
-def _collinear(vectors: np.ndarray) -> bool:
-    s = np.linalg.svd(vectors, compute_uv=False)
-    return len(s) < 2 or s[1] < 1e-6 * max(s[0], 1e-12)
+def _check_units(units: str) -> None:
+    if units not in _UNIT_SCALE:
+        raise ValueError(f"units must be one of {sorted(_UNIT_SCALE)}, got {units!r}")
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -204,7 +85,7 @@ def _continuous_euler(rot: np.ndarray, order: str) -> np.ndarray:
         prev = out[t - 1] if t else np.zeros_like(out[0])
         if locked[t].any():  # keep the previous `last` angle and solve `first` from what is left
             n = np.flatnonzero(locked[t])
-            rest = rot[t, n] @ np.swapaxes(_axis_angle(np.eye(3)[k], prev[n, 2]), -1, -2)  # = R_i(first) R_j(mid)
+            rest = rot[t, n] @ np.swapaxes(axis_angle(np.eye(3)[k], prev[n, 2]), -1, -2)  # = R_i(first) R_j(mid)
             out[t, n, 0] = np.arctan2(e * rest[:, k, j], rest[:, j, j])
             out[t, n, 2] = prev[n, 2]
         if t == 0:
@@ -220,13 +101,11 @@ def _continuous_euler(rot: np.ndarray, order: str) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------
 # text
 
-def _format(pos, offsets, euler, skeleton: Skeleton, fps: float, scale: float) -> str:
-    names = skeleton.joint_names
+def _format(names, parents, offsets, root_positions, euler, fps: float, scale: float, what: str) -> str:
     for n in names:
         if not n or any(c.isspace() for c in n):
-            raise ValueError(f"skeleton {skeleton.name!r}: joint name {n!r} cannot be written to BVH "
-                             f"(empty or has spaces)")
-    children = skeleton.children
+            raise ValueError(f"{what}: joint name {n!r} cannot be written to BVH (empty or has spaces)")
+    children = children_of(parents)
     lines = ["HIERARCHY"]
 
     def vec(v) -> str:
@@ -234,7 +113,7 @@ def _format(pos, offsets, euler, skeleton: Skeleton, fps: float, scale: float) -
 
     def joint(j: int, depth: int) -> None:
         ind = "\t" * depth
-        root = skeleton.parents[j] < 0
+        root = parents[j] < 0
         chans = "CHANNELS 6 Xposition Yposition Zposition " if root else "CHANNELS 3 "
         rots = " ".join(f"{a}rotation" for a in (ROOT_ORDER if root else JOINT_ORDER))
         lines.extend([f"{ind}{'ROOT' if root else 'JOINT'} {names[j]}", f"{ind}{{",
@@ -247,10 +126,11 @@ def _format(pos, offsets, euler, skeleton: Skeleton, fps: float, scale: float) -
                           f"{ind}\t}}"])
         lines.append(f"{ind}}}")
 
-    root = skeleton.root
-    joint(root, 0)
-    lines += ["MOTION", f"Frames: {len(pos)}", f"Frame Time: {1.0 / fps:.8f}"]
+    order = depth_first(parents)
+    joint(order[0], 0)
+    T = len(root_positions)
+    lines += ["MOTION", f"Frames: {T}", f"Frame Time: {1.0 / fps:.8f}"]
     # Channels in the hierarchy's order, which is depth first from the root.
-    values = np.concatenate([pos[:, root] * scale, euler[:, skeleton.depth_first()].reshape(len(pos), -1)], axis=1)
+    values = np.concatenate([np.asarray(root_positions) * scale, euler[:, order].reshape(T, -1)], axis=1)
     lines += [" ".join(f"{v:.6f}" for v in row) for row in values]
     return "\n".join(lines) + "\n"

@@ -30,7 +30,8 @@ from pathlib import Path
 from .bundle import GRAPHS, Bundle, BundleError
 from .manifest import SCHEMA_VERSION
 from .sampling import SamplingConfig
-from .motion import SAVE_FORMATS, check_output_path
+from .motion import RIG_FORMATS, SAVE_FORMATS, check_output_path
+from .rig import RIGS, load_rig
 from .text import check_texts
 
 DEFAULT_BUNDLE = "bundles/base"
@@ -84,7 +85,12 @@ def build_parser() -> argparse.ArgumentParser:
                                      + ", ".join(SAVE_FORMATS) + ").")
     add_generation_args(gen)
     gen.add_argument("-o", "--output", action="append", required=True, type=Path, metavar="FILE",
-                     help="output file, repeatable: walk.bvh, walk.gif, walk.json, walk.npy, walk.mp4")
+                     help="output file, repeatable: walk.bvh, walk.glb, walk.gif, walk.json, walk.npy, walk.mp4")
+    gen.add_argument("--rig", metavar="RIG",
+                     help="write the .glb and .bvh files on a game rig: " + ", ".join(RIGS) + ", or a rig file "
+                          "(.json, see `mogo rigs`); default: .glb on humanml3d, .bvh on the bundle's skeleton")
+    gen.add_argument("--in-place", action="store_true",
+                     help="with .glb/.bvh: keep the hips over the origin (no root motion; turning stays)")
     gen.set_defaults(run=cmd_generate)
 
     stream = sub.add_parser("stream", help="print one JSON line per frame as frames are decoded",
@@ -97,6 +103,11 @@ def build_parser() -> argparse.ArgumentParser:
                              '{"event": "prompt", ...} line marks each switch (needs a bundle trained for endless '
                              "streams)")
     stream.set_defaults(run=cmd_stream)
+
+    rigs = sub.add_parser("rigs", help="the game rigs --rig knows, and how to add your own",
+                          description="The rigs shipped with mogo (for --rig); a rig file of your own works the same.")
+    rigs.add_argument("rig", nargs="?", help="print this rig's file (a name, or a rig file to check)")
+    rigs.set_defaults(run=cmd_rigs)
 
     info = sub.add_parser("info", help="what a bundle holds, and whether its files are intact")
     info.add_argument("bundle", nargs="?", type=Path, help=f"bundle folder (default: $MOGO_BUNDLE or {DEFAULT_BUNDLE})")
@@ -171,6 +182,9 @@ def cmd_generate(args) -> int:
     align = _align(args)
     for out in args.output:            # before any work: a typo should not cost a generation
         check_output_path(out)
+    rig = load_rig(args.rig) if args.rig else None
+    if (rig or args.in_place) and not any(out.suffix.lower() in RIG_FORMATS for out in args.output):
+        raise UsageError(f"--rig and --in-place apply to {' and '.join(RIG_FORMATS)} outputs; none was given")
     gen = _load_generator(args)
     fixed = gen.tokens_for(args.seconds)
     sampling = _sampling(args, gen.sampling_defaults)
@@ -195,7 +209,20 @@ def cmd_generate(args) -> int:
     print(f"mogo: {motion.num_frames} frames, {motion.seconds:.2f} s ({ended}) in {took:.2f} s "
           f"[{gen.variant}, seed {args.seed}]", file=sys.stderr)
     for out in args.output:
-        print(f"wrote {motion.save(out)}")
+        on_rig = out.suffix.lower() in RIG_FORMATS and (rig or args.in_place)
+        print(f"wrote {motion.save(out, rig=rig, in_place=args.in_place) if on_rig else motion.save(out)}")
+    return 0
+
+
+def cmd_rigs(args) -> int:
+    if args.rig:
+        print(json.dumps(load_rig(args.rig).to_dict(), indent=1))
+        return 0
+    for name in RIGS:
+        rig = load_rig(name)
+        print(f"{name:10s} {rig.num_bones:3d} bones, {rig.rest_pose}-pose: {rig.description}")
+    print("\nA rig of your own: `mogo rigs mixamo > my_rig.json`, edit the bone names and rest-pose heads (metres, y "
+          "up, facing +z), then --rig my_rig.json. docs/rigs.md describes the format.")
     return 0
 
 

@@ -12,18 +12,18 @@ class BundleError(ValueError):
 class Fields:
     """Typed reads from one JSON object; every failure names the file and the dotted field path."""
 
-    def __init__(self, obj, where: str, path: str = ""):
-        self.where, self.path = where, path
+    def __init__(self, obj, where: str, path: str = "", error: type[ValueError] = BundleError):
+        self.where, self.path, self.error = where, path, error
         if not isinstance(obj, dict):
-            name = f"field {path}" if path else "the manifest"
-            raise BundleError(f"{where}: {name}: must be a JSON object, got {kind(obj)}")
+            name = f": field {path}" if path else ""
+            raise error(f"{where}{name}: must be a JSON object, got {kind(obj)}")
         self.obj = obj
 
     def _name(self, key) -> str:
         return ".".join(p for p in (self.path, key) if p)
 
     def fail(self, key, message: str):
-        raise BundleError(f"{self.where}: field {self._name(key)}: {message}")
+        raise self.error(f"{self.where}: field {self._name(key)}: {message}")
 
     def get(self, key, default=...):
         if key not in self.obj:
@@ -51,7 +51,7 @@ class Fields:
         return v
 
     def sub(self, key, default=...) -> "Fields":
-        return Fields(self.get(key, default), self.where, self._name(key))
+        return Fields(self.get(key, default), self.where, self._name(key), self.error)
 
     def list(self, key) -> list:
         v = self.get(key)

@@ -2,6 +2,7 @@
 
     motion = generator.generate("a person walks forward", seconds=4, seed=1)
     motion.save("walk.bvh")      # also .npy (joints), .json (joint positions), .gif / .mp4 (previews)
+    motion.save("walk.glb", rig="mixamo")   # on a game rig (rig.py): .glb and .bvh; in_place=True drops the path
 
 Every file is written under a temporary name beside its target and renamed into place, so a reader (a game
 watching a folder, a crashed run) never sees half a file.
@@ -10,7 +11,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Callable
@@ -21,7 +21,8 @@ from .features import FeatureLayout
 from .files import write_atomic
 from .skeleton import Skeleton
 
-SAVE_FORMATS = (".npy", ".json", ".bvh", ".gif", ".mp4")
+SAVE_FORMATS = (".npy", ".json", ".bvh", ".glb", ".gif", ".mp4")
+RIG_FORMATS = (".bvh", ".glb")     # the formats a motion can be written to on another rig
 JSON_DECIMALS = 4   # metres: 0.1 mm, far below what a viewer or a game can show, and keeps files small
 
 
@@ -54,14 +55,30 @@ class Motion:
                 "num_frames": self.num_frames, "skeleton": self.skeleton.to_dict(),
                 "frames": np.round(np.asarray(self.joints, np.float64), JSON_DECIMALS).tolist()}
 
-    def save(self, path: str | Path) -> Path:
-        """Write the motion in the format its extension names (see SAVE_FORMATS); returns the path."""
+    def save(self, path: str | Path, rig=None, in_place: bool = False) -> Path:
+        """Write the motion in the format its extension names (see SAVE_FORMATS); returns the path.
+
+        `rig` (a shipped rig's name, a rig file, or a Rig; see rig.py) retargets a .glb or .bvh onto that rig; a .glb
+        without one is on the `humanml3d` rig. `in_place=True` keeps the hips over the origin (turning stays)."""
         path = Path(path)
         suffix = check_output_path(path)
+        if (rig is not None or in_place) and suffix not in RIG_FORMATS:
+            raise ValueError(f"{path}: a rig and in_place apply to {' and '.join(RIG_FORMATS)} files, not {suffix}")
         if suffix == ".npy":
             _write_atomic(path, lambda f: np.save(f, np.asarray(self.joints, np.float32), allow_pickle=False))
         elif suffix == ".json":
             data = json.dumps(self.to_dict(), separators=(",", ":")).encode()
+            _write_atomic(path, lambda f: f.write(data))
+        elif suffix == ".glb" or rig is not None or in_place:
+            from .retarget import retarget
+            from .rig import DEFAULT_RIG
+            anim = retarget(self.joints, DEFAULT_RIG if rig is None else rig, fps=self.fps, in_place=in_place,
+                            skeleton=self.skeleton)
+            if suffix == ".glb":
+                from .gltf import glb_bytes
+                data = glb_bytes(anim, name=self.text, extras={"text": self.text, "seed": int(self.seed)})
+            else:
+                data = anim.to_bvh_text().encode("ascii")
             _write_atomic(path, lambda f: f.write(data))
         elif suffix == ".bvh":   # the writers below replace their file atomically themselves
             from .bvh import write_bvh
@@ -75,7 +92,7 @@ class Motion:
 
 def check_output_path(path: str | Path) -> str:
     """Fail before any work is done: unknown extension (ValueError) or a file that cannot be written here
-    (OutputError: unwritable folder, a folder in the way, .mp4 without ffmpeg).
+    (OutputError: unwritable folder, a folder in the way).
 
     Returns the lower-case extension. Creates missing parent folders, as `save` would.
     """
@@ -84,9 +101,6 @@ def check_output_path(path: str | Path) -> str:
     if suffix not in SAVE_FORMATS:
         raise ValueError(f"{path}: unknown output format {path.suffix or '(no extension)'!r}; "
                          f"supported: {', '.join(SAVE_FORMATS)}")
-    if suffix == ".mp4" and shutil.which("ffmpeg") is None:
-        raise OutputError(f"{path}: writing .mp4 needs the ffmpeg program on PATH and there is none; "
-                          f"install ffmpeg or write a .gif preview instead")
     if path.is_dir():
         raise OutputError(f"{path}: is a folder; give a file name ending in {suffix}")
     try:

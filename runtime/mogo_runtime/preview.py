@@ -1,4 +1,4 @@
-"""Stick-figure previews of joint motion: animated GIFs (Pillow), grids of several motions, MP4 via ffmpeg.
+"""Stick-figure previews of joint motion: animated GIFs (Pillow), grids of several motions, MP4 (imageio-ffmpeg's ffmpeg).
 
 The camera is fixed for a whole clip: a perspective 3/4 front view (the body faces +z in the rest pose,
 y is up) aimed at the middle of everything the clip touches, zoomed so every frame fits. The floor is a
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
 import subprocess
 import tempfile
 from dataclasses import dataclass
@@ -89,12 +88,11 @@ def render_grid_gif(path, motions, skeleton: Skeleton = HUMANML3D, fps: float = 
 
 def render_mp4(path, joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, title: str | None = None,
                size: tuple[int, int] = (320, 320), camera: Camera = Camera()) -> Path:
-    """Write an H.264/MPEG-4 video by piping raw frames to the `ffmpeg` binary (atomically).
-    Raises RuntimeError if ffmpeg is not on PATH (no silent fallback: use render_gif instead)."""
-    ffmpeg = shutil.which("ffmpeg")
-    if ffmpeg is None:
-        raise RuntimeError("render_mp4 needs the ffmpeg binary on PATH and none was found; "
-                           "install ffmpeg or use render_gif")
+    """Write an H.264/MPEG-4 video by piping raw frames to ffmpeg (atomically): the binary the imageio-ffmpeg
+    wheel ships (or the one IMAGEIO_FFMPEG_EXE names), so no system ffmpeg is needed."""
+    import imageio_ffmpeg
+
+    ffmpeg = imageio_ffmpeg.get_ffmpeg_exe()
     frames = render_frames(joints, skeleton, fps, title, size, camera)
     path = Path(path)
     tmp = temp_path(path)

@@ -83,3 +83,32 @@ def quaternion_to_cont6d(q: np.ndarray) -> np.ndarray:
     """(..., 4) -> (..., 6): the first two columns of the rotation matrix, column 0 then column 1."""
     m = quaternion_to_matrix(q)
     return np.concatenate([m[..., 0], m[..., 1]], axis=-1)
+
+
+def matrix_to_quaternion(m: np.ndarray, continuous_axis: int | None = None) -> np.ndarray:
+    """(..., 3, 3) rotation matrices -> (..., 4) unit quaternions (w, x, y, z), w >= 0; with `continuous_axis`
+    (the time axis of the leading dimensions) each quaternion's sign is instead chosen nearest the previous one,
+    so that interpolating between neighbours turns the short way (q and -q are the same rotation)."""
+    m = np.asarray(m, dtype=np.float64)
+    if m.shape[-2:] != (3, 3):
+        raise ValueError(f"m must have shape (..., 3, 3), got {m.shape}")
+    # Shepperd's method: from the largest of w, x, y, z, whichever is best conditioned.
+    t = np.stack([1 + m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2], 1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+                  1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2], 1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]], -1)
+    cand = np.stack([
+        np.stack([t[..., 0], m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
+        np.stack([m[..., 2, 1] - m[..., 1, 2], t[..., 1], m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
+        np.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0], t[..., 2], m[..., 1, 2] + m[..., 2, 1]], -1),
+        np.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], t[..., 3]], -1),
+    ], -2)                                                                      # (..., 4 candidates, 4)
+    best = np.argmax(t, axis=-1)
+    q = np.take_along_axis(cand, best[..., None, None], axis=-2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(q[..., :1] < 0, -q, q)
+    if continuous_axis is not None:
+        q = np.moveaxis(q, continuous_axis, 0).copy()
+        for i in range(1, len(q)):
+            flip = (q[i] * q[i - 1]).sum(-1) < 0
+            q[i][flip] *= -1
+        q = np.moveaxis(q, 0, continuous_axis)
+    return q

@@ -36,7 +36,7 @@ class Skeleton:
 
     @property
     def children(self) -> list[list[int]]:
-        return [[j for j, p in enumerate(self.parents) if p == i] for i in range(self.num_joints)]
+        return children_of(self.parents)
 
     @property
     def root(self) -> int:
@@ -47,11 +47,7 @@ class Skeleton:
 
     def depth_first(self) -> list[int]:
         """Every joint, parents before children: depth first from the root, children in joint order."""
-        children, order, stack = self.children, [], [self.root]
-        while stack:
-            order.append(stack.pop())
-            stack.extend(reversed(children[order[-1]]))
-        return order
+        return depth_first(self.parents)
 
     def check_joints(self, joints, what: str = "joints", count: bool = False) -> np.ndarray:
         """`joints` (T, J, 3) in metres as float64, or a ValueError naming the problem (with `count`: how many
@@ -75,6 +71,20 @@ class Skeleton:
         """JSON-friendly description, as stored in bundle manifests and motion files."""
         return {"name": self.name, "joint_names": list(self.joint_names), "parents": list(self.parents),
                 "offsets": np.round(self.offsets, 6).tolist(), "fps": self.fps, "up_axis": "y", "units": "m"}
+
+
+def children_of(parents) -> list[list[int]]:
+    """Each joint's children, in joint order, from the parent index of every joint (-1 for the root)."""
+    return [[j for j, p in enumerate(parents) if p == i] for i in range(len(parents))]
+
+
+def depth_first(parents) -> list[int]:
+    """Every joint reachable from the (first) root, parents before children, children in joint order."""
+    children, order, stack = children_of(parents), [], [list(parents).index(-1)]
+    while stack:
+        order.append(stack.pop())
+        stack.extend(reversed(children[order[-1]]))
+    return order
 
 
 def _parents_from_chains(num_joints: int, chains) -> tuple[int, ...]:

@@ -220,7 +220,7 @@ def test_empty_text(capsys, tmp_path, text, toy_bundle):  # noqa: F811
 def test_bad_extension_lists_the_formats(capsys, tmp_path, toy_bundle):  # noqa: F811
     code, _, err = run_cli(capsys, "generate", TEXT, "-o", tmp_path / "a.bvh", "-o", tmp_path / "a.fbx",
                            "--bundle", toy_bundle)
-    assert_usage_error(code, err, "a.fbx", ".npy", ".json", ".bvh", ".gif", ".mp4")
+    assert_usage_error(code, err, "a.fbx", ".npy", ".json", ".bvh", ".glb", ".gif", ".mp4")
     assert not (tmp_path / "a.bvh").exists()                               # checked before generating
 
 
@@ -259,12 +259,13 @@ def test_usage_errors(capsys):
     assert_usage_error(code, err, "invalid choice")
 
 
-def test_mp4_without_ffmpeg_fails_before_generating(capsys, tmp_path, toy_bundle, monkeypatch):  # noqa: F811
+def test_mp4_needs_no_ffmpeg_on_path(capsys, tmp_path, toy_bundle, monkeypatch):  # noqa: F811
     monkeypatch.setenv("PATH", str(tmp_path))                             # no ffmpeg anywhere on PATH
-    code, _, err = run_cli(capsys, "generate", TEXT, "-o", tmp_path / "a.npy", "-o", tmp_path / "a.mp4",
-                           "--bundle", toy_bundle)
-    assert_usage_error(code, err, "a.mp4", "ffmpeg")
-    assert not (tmp_path / "a.npy").exists()
+    monkeypatch.delenv("IMAGEIO_FFMPEG_EXE", raising=False)
+    code, out, err = run_cli(capsys, "generate", TEXT, "-o", tmp_path / "a.mp4", "--bundle", toy_bundle,
+                             "--seconds", "1")
+    assert code == 0, err
+    assert (tmp_path / "a.mp4").read_bytes()[4:8] == b"ftyp"
 
 
 def test_progress_line_only_on_a_terminal(capsys, tmp_path, toy_bundle, monkeypatch):  # noqa: F811

@@ -1,0 +1,240 @@
+"""Retargeting: a HumanML3D motion (joint positions) onto a game rig (rig.py), as rotations from the rig's rest pose.
+
+    anim = retarget(motion.joints, load_rig("mixamo"), fps=motion.fps)          # or motion.save("x.glb", rig=...)
+    anim.local_rotations, anim.local_translations                                # what a glTF or BVH file stores
+
+How, per frame:
+1. Inverse kinematics on the source (ik.local_rotations) gives each HumanML3D joint's turn from its rest pose (T-pose,
+   facing +z), twist included: the same rotations the BVH writer stores.
+2. Every rig bone that follows a joint takes that joint's turn, first corrected for how the two rest poses differ (an
+   A-pose arm is swung up onto the T-pose arm), then swung the last bit so the rig's bone points exactly where the
+   source bone points. A bone with several followed bones below it (hips, chest) takes the best-fit turn of all of
+   them. Bones that follow nothing keep their rest pose relative to their parent. Limb lengths stay the rig's.
+3. The hips follow the source's pelvis, scaled by the ratio of the two legs (rest height of the hips above the
+   ankles), so strides fit the rig's legs and a foot on the source's floor (y = 0) lands on the rig's floor; with
+   `in_place` the horizontal path is dropped (turning stays). A rig with a root-motion bone carries the path on it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .bvh import rotations_to_bvh_text
+from .ik import axis_angle, kabsch, local_rotations, min_rotation, rest_offsets
+from .rig import FOOT_SOURCES, Rig, load_rig
+from .skeleton import HUMANML3D, Skeleton, check_fps
+
+CONTACT_HEIGHT = 0.05       # m: a source toe below this is on the ground
+PLANT_MAX_DEG = 1.9         # the most a leg is swung to keep a planted foot in place (bone directions stay within it)
+PLANT_RELEASE_S = 0.25      # time constant of the swing fading out once the foot lifts
+
+
+@dataclass
+class RigMotion:
+    """A motion on a rig: every bone's world orientation and position per frame (metres, y up)."""
+    rig: Rig
+    fps: float
+    world_rotations: np.ndarray     # (T, B, 3, 3) each bone's axes in the world (its rest orientation included)
+    positions: np.ndarray           # (T, B, 3) each bone's head in the world
+    scale: float                    # rig hip height / source hip height: source path * scale = rig path
+    in_place: bool = False
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.positions.shape[0])
+
+    @property
+    def local_rotations(self) -> np.ndarray:
+        """(T, B, 3, 3) each bone's rotation in its parent's axes (the root's in the world's): glTF node rotations."""
+        out = self.world_rotations.copy()
+        for b, p in enumerate(self.rig.parents):
+            if p >= 0:
+                out[:, b] = np.swapaxes(self.world_rotations[:, p], -1, -2) @ self.world_rotations[:, b]
+        return out
+
+    @property
+    def local_translations(self) -> np.ndarray:
+        """(T, B, 3) each bone's head in its parent's axes (the root's in the world): glTF node translations."""
+        out = self.positions.copy()
+        for b, p in enumerate(self.rig.parents):
+            if p >= 0:
+                out[:, b] = np.einsum("tji,tj->ti", self.world_rotations[:, p], self.positions[:, b] - self.positions[:, p])
+        return out
+
+    @property
+    def moving_bones(self) -> list[int]:
+        """Bones whose translation changes over the motion (the hips; the root-motion bone): the rest only turn."""
+        rest_t, _ = self.rig.rest_local
+        moved = np.abs(self.local_translations - rest_t[None]).max(axis=0).max(axis=-1) > 1e-7
+        return [b for b in range(self.rig.num_bones) if moved[b] or b == self.rig.hips]
+
+    def to_bvh_text(self, units: str = "cm") -> str:
+        """BVH of the rig: its bone names and rest pose (BVH has no rest orientations, so every joint's channels
+        are its turn from the rest pose, in its parent's turned axes)."""
+        rig = self.rig
+        delta = self.world_rotations @ np.swapaxes(rig.rest_rotations, -1, -2)[None]   # turn from the rest pose
+        local = delta.copy()
+        for b, p in enumerate(rig.parents):
+            if p >= 0:
+                local[:, b] = np.swapaxes(delta[:, p], -1, -2) @ delta[:, b]
+        offsets = rig.heads - rig.heads[np.maximum(rig.parents, 0)]
+        root = rig.parents.index(-1)
+        return rotations_to_bvh_text(rig.bone_names, rig.parents, offsets, self.positions[:, root], local, self.fps,
+                                     units, what=f"rig {rig.name!r}")
+
+
+def retarget(joints, rig: "Rig | str", fps: float = 20.0, in_place: bool = False,
+             skeleton: Skeleton = HUMANML3D) -> RigMotion:
+    """`joints` (T, 22, 3) HumanML3D positions in metres -> the same motion on `rig` (a Rig, a shipped rig's name or
+    a rig file). See the module docstring for what is kept."""
+    rig = load_rig(rig)
+    if skeleton.name != HUMANML3D.name:
+        raise ValueError(f"retargeting reads HumanML3D's 22-joint skeleton; this motion is on {skeleton.name!r}")
+    if not isinstance(in_place, bool):
+        raise ValueError(f"in_place must be True or False, got {in_place!r}")
+    fps = check_fps(fps)
+    pos = skeleton.check_joints(joints, "joints")
+    offsets = rest_offsets(pos, skeleton)
+    src_turn = _world_turns(local_rotations(pos, skeleton, offsets, fps), skeleton.parents)    # (T, J, 3, 3)
+    src_rest = _rest_positions(offsets, skeleton.parents)                                      # pelvis at 0
+
+    T, B = len(pos), rig.num_bones
+    turn = np.zeros((T, B, 3, 3))
+    for b in rig.order:
+        s, p, spans = rig.sources[b], rig.parents[b], rig.spans[b]
+        if s < 0:                     # follows nothing: keeps its rest pose relative to its parent
+            turn[:, b] = turn[:, p] if p >= 0 else np.eye(3)
+        elif not spans:               # a followed end (head, toes): the joint's own turn
+            turn[:, b] = src_turn[:, s]
+        elif len(spans) == 1:
+            c = spans[0]
+            rest_rig = _unit(rig.heads[c] - rig.heads[b])
+            rest_src = _unit(src_rest[rig.sources[c]] - src_rest[s])
+            base = src_turn[:, s] @ min_rotation(rest_rig[None], rest_src[None])[0]
+            seen = _unit(pos[:, rig.sources[c]] - pos[:, s])
+            turn[:, b] = min_rotation(base @ rest_rig, seen) @ base
+        else:
+            rest_rig = _unit(rig.heads[spans] - rig.heads[b])                              # (k, 3)
+            seen = _unit(pos[:, [rig.sources[c] for c in spans]] - pos[:, None, s])         # (T, k, 3)
+            turn[:, b] = kabsch(rest_rig[None], seen)
+
+    ankles = ("left_ankle", "right_ankle")
+    scale = _leg_length(rig.heads, rig.hips, [rig.bone(a) for a in ankles]) / \
+        _leg_length(src_rest, skeleton.root, [skeleton.joint_names.index(a) for a in ankles])
+    # HumanML3D's floor is y = 0, where the lowest foot joint touches it; the rig's lowest foot bone touches its floor
+    # at its rest height.
+    hips = scale * pos[:, skeleton.root] + [rig.heads[rig.hips, 0], rig.floor_height, rig.heads[rig.hips, 2]]
+    if in_place:
+        hips[:, [0, 2]] = rig.heads[rig.hips, [0, 2]]
+
+    if not in_place:
+        _plant_feet(rig, turn, hips, pos, scale, fps)
+    # The lowest foot joint stands as high above the rig's floor as the source's above its own (scaled), so a foot
+    # on the floor there is on the floor here: the hips rise or sink by the difference the rig's other proportions
+    # make (a few centimetres at most); the ground path stays exact.
+    src_feet = [skeleton.joint_names.index(f) for f in FOOT_SOURCES]
+    rig_feet = [rig.bone(f) for f in FOOT_SOURCES]
+    hips[:, 1] += rig.floor_height + scale * pos[:, src_feet, 1].min(1) - _forward(rig, turn, hips)[:, rig_feet, 1].min(1)
+    positions = _forward(rig, turn, hips)
+    return RigMotion(rig=rig, fps=fps, world_rotations=turn @ rig.rest_rotations[None], positions=positions,
+                     scale=float(scale), in_place=in_place)
+
+
+def _plant_feet(rig: Rig, turn: np.ndarray, hips: np.ndarray, pos: np.ndarray, scale: float, fps: float) -> None:
+    """While a source toe is on the ground, swing the rig's leg about its hip (by at most PLANT_MAX_DEG) so the toe
+    moves over the ground as the source's does, scaled: the rig's other proportions would otherwise slide it a few
+    millimetres a frame. Once the foot lifts, the swing fades out (PLANT_RELEASE_S). Changes `turn` in place."""
+    positions = _forward(rig, turn, hips)
+    release = float(np.exp(-1.0 / (fps * PLANT_RELEASE_S)))
+    limit = np.radians(PLANT_MAX_DEG)
+    for side in ("left", "right"):
+        hip, toe = rig.bone(f"{side}_hip"), rig.bone(f"{side}_foot")
+        src_toe = pos[:, HUMANML3D.joint_names.index(f"{side}_foot")]
+        on_ground = src_toe[:, 1] < CONTACT_HEIGHT
+        swing = np.zeros((len(pos), 3))                                             # rotation vectors
+        current, anchor, src_anchor = np.zeros(3), None, None
+        for t in range(len(pos)):
+            h, v = positions[t, hip], positions[t, toe] - positions[t, hip]
+            current = current * release
+            if on_ground[t]:
+                if anchor is None:
+                    anchor, src_anchor = h + _rotvec(current[None])[0] @ v, src_toe[t]
+                goal = anchor + scale * (src_toe[t] - src_anchor)
+                goal[1] = h[1] + v[1]
+                current = _rotvec_between(v, goal - h, limit)
+            else:
+                anchor = None
+            swing[t] = current
+        rot = _rotvec(swing)
+        for b in range(rig.num_bones):
+            if _is_below(rig.parents, hip, b):
+                turn[:, b] = rot @ turn[:, b]
+
+
+def _rotvec_between(a: np.ndarray, b: np.ndarray, limit: float) -> np.ndarray:
+    """The rotation vector of the smallest turn from direction a to direction b, at most `limit` radians."""
+    axis = np.cross(a, b)
+    sin, cos = np.linalg.norm(axis), float(a @ b)
+    if sin < 1e-12:
+        return np.zeros(3)
+    return axis / sin * min(np.arctan2(sin, cos), limit)
+
+
+def _rotvec(v: np.ndarray) -> np.ndarray:
+    """(N, 3) rotation vectors -> (N, 3, 3) matrices."""
+    angle = np.linalg.norm(v, axis=-1)
+    axis = np.where(angle[:, None] > 1e-12, v / np.maximum(angle, 1e-300)[:, None], [1.0, 0.0, 0.0])
+    return axis_angle(axis, angle)
+
+
+def _is_below(parents, a: int, b: int) -> bool:
+    """b is a or under it."""
+    while b >= 0:
+        if b == a:
+            return True
+        b = parents[b]
+    return False
+
+
+def _forward(rig: Rig, turn: np.ndarray, hips: np.ndarray) -> np.ndarray:
+    """(T, B, 3) bone heads from each bone's turn from its rest pose and the hips' path."""
+    positions = np.zeros(turn.shape[:2] + (3,))
+    for b in rig.order:
+        p = rig.parents[b]
+        if b == rig.hips:
+            positions[:, b] = hips
+        elif b == rig.root_motion_bone:
+            positions[:, b] = rig.heads[b]
+            positions[:, b, [0, 2]] += hips[:, [0, 2]] - rig.heads[rig.hips, [0, 2]]
+        elif p < 0:
+            positions[:, b] = rig.heads[b]
+        else:
+            positions[:, b] = positions[:, p] + turn[:, p] @ (rig.heads[b] - rig.heads[p])
+    return positions
+
+
+def _world_turns(local: np.ndarray, parents) -> np.ndarray:
+    out = local.copy()
+    for j, p in enumerate(parents):   # HumanML3D lists parents before children
+        if p >= 0:
+            out[:, j] = out[:, p] @ local[:, j]
+    return out
+
+
+def _rest_positions(offsets: np.ndarray, parents) -> np.ndarray:
+    out = np.zeros_like(offsets)
+    for j, p in enumerate(parents):
+        if p >= 0:
+            out[j] = out[p] + offsets[j]
+    return out
+
+
+def _leg_length(heads: np.ndarray, hips: int, ankles: list[int]) -> float:
+    """Rest height of the hips above the ankles (the leg, without the foot: feet differ more than legs)."""
+    return float(heads[hips, 1] - heads[ankles, 1].mean())
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.maximum(n, 1e-12)
