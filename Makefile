@@ -6,7 +6,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.mogo-installed
 
-.PHONY: setup demo test test-export test-eval test-runtime test-js bench clean
+.PHONY: setup demo test test-export test-eval test-runtime test-js test-tools bench clean
 
 setup: $(STAMP)
 
@@ -21,7 +21,7 @@ demo: $(STAMP)
 	$(PY) -m mogo_export.demo
 
 # The runtime's tests run in their own process with torch and mogo_export made unimportable.
-test: $(STAMP) test-export test-eval test-runtime test-js test-web
+test: $(STAMP) test-export test-eval test-runtime test-js test-web test-tools
 
 test-export: $(STAMP)
 	$(PY) -m pytest -q tests/export
@@ -37,6 +37,12 @@ test-runtime: $(STAMP)
 # trained bundle (the real exporter's graphs; trained here, ~2 min). npm installs onnxruntime-node on first use.
 test-js: $(STAMP)
 	MOGO_JS_TINY=1 bash js/test/run.sh
+
+# The rigs' .glb and .bvh files in real tools: Khronos's gltf-validator and three.js's GLTFLoader (npm, into
+# tests/tools/node_modules) and real Blender's importers (bpy 5.0.1, a ~370 MB wheel, into .venv-blender; the first
+# install is the slow part). tests/tools/run.sh installs what is missing.
+test-tools: $(STAMP)
+	bash tests/tools/run.sh
 
 # The web page (web/): a bundle run in the browser (onnxruntime-web, three.js), no server-side inference. `make web`
 # installs web/'s npm packages and serves the repository root; open the URL it prints (?bundle=FOLDER picks the

@@ -10,8 +10,8 @@ How, per frame:
    A-pose arm is swung up onto the T-pose arm), then swung the last bit so the rig's bone points exactly where the
    source bone points. A bone with several followed bones below it (hips, chest) takes the best-fit turn of all of
    them. Bones that follow nothing keep their rest pose relative to their parent. Limb lengths stay the rig's.
-3. The hips follow the source's pelvis, scaled by the ratio of the two legs (rest height of the hips above the
-   ankles), so strides fit the rig's legs and a foot on the source's floor (y = 0) lands on the rig's floor; with
+3. The hips follow the source's pelvis, scaled by the ratio of the two legs (thigh plus shin), so strides fit the
+   rig's legs and a foot on the source's floor (y = 0) lands on the rig's floor; with
    `in_place` the horizontal path is dropped (turning stays). A rig with a root-motion bone carries the path on it.
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ from .ik import axis_angle, kabsch, local_rotations, min_rotation, rest_offsets
 from .rig import FOOT_SOURCES, Rig, load_rig
 from .skeleton import HUMANML3D, Skeleton, check_fps
 
-CONTACT_HEIGHT = 0.05       # m: a source toe below this is on the ground
+CONTACT_HEIGHT = 0.05       # m: a source toe below this is on the ground (mogo_eval's skating measure too)
 PLANT_MAX_DEG = 1.9         # the most a leg is swung to keep a planted foot in place (bone directions stay within it)
 PLANT_RELEASE_S = 0.25      # time constant of the swing fading out once the foot lifts
 
@@ -71,17 +71,20 @@ class RigMotion:
 
     def to_bvh_text(self, units: str = "cm") -> str:
         """BVH of the rig: its bone names and rest pose (BVH has no rest orientations, so every joint's channels
-        are its turn from the rest pose, in its parent's turned axes)."""
+        are its turn from the rest pose, in its parent's turned axes). BVH moves only its root, so the hips are the
+        root and bones above them (a root-motion bone) are left out."""
         rig = self.rig
-        delta = self.world_rotations @ np.swapaxes(rig.rest_rotations, -1, -2)[None]   # turn from the rest pose
+        keep = [b for b in rig.order if _is_below(rig.parents, rig.hips, b)]
+        index = {b: i for i, b in enumerate(keep)}
+        parents = [index.get(rig.parents[b], -1) for b in keep]
+        delta = self.world_rotations[:, keep] @ np.swapaxes(rig.rest_rotations[keep], -1, -2)[None]  # turn from rest
         local = delta.copy()
-        for b, p in enumerate(rig.parents):
+        for i, p in enumerate(parents):
             if p >= 0:
-                local[:, b] = np.swapaxes(delta[:, p], -1, -2) @ delta[:, b]
-        offsets = rig.heads - rig.heads[np.maximum(rig.parents, 0)]
-        root = rig.parents.index(-1)
-        return rotations_to_bvh_text(rig.bone_names, rig.parents, offsets, self.positions[:, root], local, self.fps,
-                                     units, what=f"rig {rig.name!r}")
+                local[:, i] = np.swapaxes(delta[:, p], -1, -2) @ delta[:, i]
+        offsets = np.array([rig.heads[b] - rig.heads[keep[p]] if p >= 0 else np.zeros(3) for b, p in zip(keep, parents)])
+        return rotations_to_bvh_text([rig.bone_names[b] for b in keep], parents, offsets, self.positions[:, rig.hips],
+                                     local, self.fps, units, what=f"rig {rig.name!r}")
 
 
 def retarget(joints, rig: "Rig | str", fps: float = 20.0, in_place: bool = False,
@@ -119,9 +122,9 @@ def retarget(joints, rig: "Rig | str", fps: float = 20.0, in_place: bool = False
             seen = _unit(pos[:, [rig.sources[c] for c in spans]] - pos[:, None, s])         # (T, k, 3)
             turn[:, b] = kabsch(rest_rig[None], seen)
 
-    ankles = ("left_ankle", "right_ankle")
-    scale = _leg_length(rig.heads, rig.hips, [rig.bone(a) for a in ankles]) / \
-        _leg_length(src_rest, skeleton.root, [skeleton.joint_names.index(a) for a in ankles])
+    legs = [[f"{side}_{j}" for j in ("hip", "knee", "ankle")] for side in ("left", "right")]
+    scale = _leg_length(rig.heads, [[rig.bone(j) for j in leg] for leg in legs]) / \
+        _leg_length(src_rest, [[skeleton.joint_names.index(j) for j in leg] for leg in legs])
     # HumanML3D's floor is y = 0, where the lowest foot joint touches it; the rig's lowest foot bone touches its floor
     # at its rest height.
     hips = scale * pos[:, skeleton.root] + [rig.heads[rig.hips, 0], rig.floor_height, rig.heads[rig.hips, 2]]
@@ -143,21 +146,21 @@ def retarget(joints, rig: "Rig | str", fps: float = 20.0, in_place: bool = False
 
 def _plant_feet(rig: Rig, turn: np.ndarray, hips: np.ndarray, pos: np.ndarray, scale: float, fps: float) -> None:
     """While a source toe is on the ground, swing the rig's leg about its hip (by at most PLANT_MAX_DEG) so the toe
-    moves over the ground as the source's does, scaled: the rig's other proportions would otherwise slide it a few
-    millimetres a frame. Once the foot lifts, the swing fades out (PLANT_RELEASE_S). Changes `turn` in place."""
+    moves over the ground as the source's does, scaled: the rig's other proportions (hip width, foot length) would
+    otherwise slide it a few millimetres a frame. Once the foot lifts, the swing fades out (PLANT_RELEASE_S).
+    Changes `turn` in place."""
     positions = _forward(rig, turn, hips)
     release = float(np.exp(-1.0 / (fps * PLANT_RELEASE_S)))
     limit = np.radians(PLANT_MAX_DEG)
     for side in ("left", "right"):
         hip, toe = rig.bone(f"{side}_hip"), rig.bone(f"{side}_foot")
         src_toe = pos[:, HUMANML3D.joint_names.index(f"{side}_foot")]
-        on_ground = src_toe[:, 1] < CONTACT_HEIGHT
         swing = np.zeros((len(pos), 3))                                             # rotation vectors
         current, anchor, src_anchor = np.zeros(3), None, None
         for t in range(len(pos)):
             h, v = positions[t, hip], positions[t, toe] - positions[t, hip]
             current = current * release
-            if on_ground[t]:
+            if src_toe[t, 1] < CONTACT_HEIGHT:
                 if anchor is None:
                     anchor, src_anchor = h + _rotvec(current[None])[0] @ v, src_toe[t]
                 goal = anchor + scale * (src_toe[t] - src_anchor)
@@ -230,9 +233,10 @@ def _rest_positions(offsets: np.ndarray, parents) -> np.ndarray:
     return out
 
 
-def _leg_length(heads: np.ndarray, hips: int, ankles: list[int]) -> float:
-    """Rest height of the hips above the ankles (the leg, without the foot: feet differ more than legs)."""
-    return float(heads[hips, 1] - heads[ankles, 1].mean())
+def _leg_length(heads: np.ndarray, legs: list[list[int]]) -> float:
+    """Thigh plus shin, mean of the two legs: how far a stride reaches (the pelvis and the feet differ more between
+    rigs than legs do, and a planted foot slides by the difference in leg length times the angle the leg sweeps)."""
+    return float(np.mean([sum(np.linalg.norm(heads[b] - heads[a]) for a, b in zip(leg, leg[1:])) for leg in legs]))
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
