@@ -106,10 +106,8 @@ def retarget(joints, rig: "Rig | str", fps: float = 20.0, in_place: bool = False
     turn = np.zeros((T, B, 3, 3))
     for b in rig.order:
         s, p, spans = rig.sources[b], rig.parents[b], rig.spans[b]
-        if s < 0:                     # follows nothing: keeps its rest pose relative to its parent
-            turn[:, b] = turn[:, p] if p >= 0 else np.eye(3)
-        elif not spans:               # a followed end (head, toes): the joint's own turn
-            turn[:, b] = src_turn[:, s]
+        if s < 0 or not spans:        # follows nothing, or ends a chain (head, hands, toes: the source's ends have no
+            turn[:, b] = turn[:, p] if p >= 0 else np.eye(3)     # turn of their own): keeps its rest pose on its parent
         elif len(spans) == 1:
             c = spans[0]
             rest_rig = _unit(rig.heads[c] - rig.heads[b])

@@ -285,3 +285,21 @@ def test_motion_save_writes_rigs_and_refuses_a_rig_where_none_applies(tmp_path, 
         with pytest.raises(ValueError, match="apply to .bvh and .glb files"):
             m.save(tmp_path / bad, rig="mixamo")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plain.glb", "walk.bvh", "walk.glb"]
+
+
+@pytest.mark.parametrize("rig", ["mixamo", "ue5"])
+def test_chain_ends_keep_their_rest_pose_on_their_parent(clip, rig):
+    """A hand or a head top follows nothing in the source (HumanML3D's wrists and head end their chains), so it
+    stays as it is at rest relative to the bone above it: a hand in line with its forearm stays in line."""
+    anim = retarget(clip, rig)
+    r = anim.rig
+    for end, joint in (("hand_l", "left_wrist"), ("mixamorig:LeftHand", "left_wrist"), ("head", "head"),
+                       ("mixamorig:Head", "head")):
+        if end not in r.bone_names:
+            continue
+        b = r.bone_names.index(end)
+        assert r.sources[b] == HUMANML3D.joint_names.index(joint) and not r.spans[b]
+        p = r.parents[b]
+        rest = r.rest_rotations[p].T @ r.rest_rotations[b]
+        local = np.swapaxes(anim.world_rotations[:, p], -1, -2) @ anim.world_rotations[:, b]
+        assert np.abs(local - rest).max() < 1e-9, end

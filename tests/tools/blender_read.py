@@ -39,12 +39,11 @@ def read(job: dict) -> dict:
 
 
 def render(scene, arm, frame: int, png: str) -> None:
-    """A front three-quarter view of the figure at `frame`, lit, on a floor grid, 480x480 (Workbench engine)."""
+    """A front three-quarter view of the figure at `frame`, 480x480 (Workbench engine), nothing else in the scene."""
     scene.frame_set(frame)
     heads = [arm.matrix_world @ pb.head for pb in arm.pose.bones]
     cx = sum(h.x for h in heads) / len(heads)
     cy = sum(h.y for h in heads) / len(heads)
-    bpy.ops.mesh.primitive_plane_add(size=6, location=(cx, cy, 0))
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     scene.collection.objects.link(cam)
     cam.location = (cx + 2.6, cy - 3.4, 1.6)

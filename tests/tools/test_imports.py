@@ -56,8 +56,14 @@ def written(tmp_path_factory, clips) -> dict:
     return out
 
 
+RENDER = ("mixamo", "walk_forward", ".glb")     # Blender renders one frame of this one (test_blender_renders_...)
+
+
 def _jobs(written, exts, folder: Path) -> Path:
     jobs = [{"file": str(p), "frames": a.num_frames, "fps": a.fps} for (_, _, e), (p, a) in written.items() if e in exts]
+    for job in jobs:
+        if job["file"] == str(written[RENDER][0]):
+            job["render"] = {"frame": written[RENDER][1].num_frames // 2, "png": str(folder / "render.png")}
     path = folder / f"jobs{'_'.join(exts)}.json"
     path.write_text(json.dumps(jobs))
     return path
@@ -82,7 +88,7 @@ def blender(written, tmp_path_factory) -> dict:
     out = folder / "out.json"
     subprocess.run([python, str(HERE / "blender_read.py"), str(_jobs(written, (".glb", ".bvh"), folder)), str(out)],
                    check=True, timeout=900, stdout=subprocess.DEVNULL)
-    return json.loads(out.read_text())
+    return {**json.loads(out.read_text()), "render.png": folder / "render.png"}
 
 
 def _errors(read: dict, anim, joints, sanitise=lambda n: n) -> tuple[float, float]:
@@ -145,6 +151,19 @@ def test_blender_imports_the_glb_as_retargeted(blender, written, clips):
 
 def test_blender_imports_the_rig_bvh_as_retargeted(blender, written, clips):
     _check("Blender", blender, written, clips, ".bvh")
+
+
+def test_blender_renders_the_figure(blender):
+    """Blender's renderer (Workbench) draws the .glb's skinned figure: a Mixamo rig walking, one frame, 480x480."""
+    from PIL import Image
+
+    image = np.asarray(Image.open(blender["render.png"]).convert("L"), np.int16)
+    background = np.median(np.concatenate([image[0], image[-1], image[:, 0], image[:, -1]]))
+    figure = np.abs(image - background) > 40
+    rows, cols = np.flatnonzero(figure.any(1)), np.flatnonzero(figure.any(0))
+    print(f"render: {figure.mean():.1%} of the pixels differ from the background, spanning {np.ptp(rows)} x "
+          f"{np.ptp(cols)} px ({blender['render.png']})")
+    assert figure.mean() > 0.005 and np.ptp(rows) > 150
 
 
 def test_feet_slide_and_sink_no_more_than_the_source(clips):
