@@ -102,7 +102,10 @@ def render_mp4(path, joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, 
            "-pix_fmt", "yuv420p", "-movflags", "+faststart", "-f", "mp4", str(tmp)]
     try:
         with tempfile.TemporaryFile() as err:  # a file, not a pipe: ffmpeg can never block on stderr
-            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=err)
+            try:
+                proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=err)
+            except OSError as e:
+                raise RuntimeError(f"cannot run ffmpeg {ffmpeg!r} to write {path}: {e.strerror or e}") from None
             try:
                 for f in frames:
                     proc.stdin.write(f.convert("RGB").tobytes())

@@ -114,11 +114,11 @@ def test_200_frame_gif_is_fast(tmp_path, humanml3d_fixture):
     assert seconds < 2.0
 
 
-def test_mp4_without_ffmpeg_raises(tmp_path, monkeypatch):
-    monkeypatch.setenv("PATH", str(tmp_path))  # a folder with no ffmpeg in it
-    with pytest.raises(RuntimeError, match="ffmpeg"):
+def test_mp4_with_a_missing_ffmpeg_raises(tmp_path, monkeypatch):
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(tmp_path / "no-such-ffmpeg"))   # the user's choice, not there
+    with pytest.raises(RuntimeError, match="cannot run ffmpeg .*no-such-ffmpeg"):
         render_mp4(tmp_path / "x.mp4", rest_pose(3))
-    assert not (tmp_path / "x.mp4").exists()
+    assert not list(tmp_path.iterdir())
 
 
 def test_mp4_pipes_raw_frames_to_ffmpeg(tmp_path, monkeypatch):
@@ -128,7 +128,7 @@ def test_mp4_pipes_raw_frames_to_ffmpeg(tmp_path, monkeypatch):
     fake = bin_dir / "ffmpeg"
     fake.write_text('#!/bin/sh\necho "$@" > "$(dirname "$0")/args"\nfor a; do out=$a; done\ncat > "$out"\n')
     fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
-    monkeypatch.setenv("PATH", f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(fake))      # imageio-ffmpeg's way to name another ffmpeg
     path = render_mp4(tmp_path / "out" / "clip.mp4", rest_pose(7), fps=25.0, size=(100, 80))
     assert path.stat().st_size == 7 * 100 * 80 * 3
     args = (bin_dir / "args").read_text().split()
