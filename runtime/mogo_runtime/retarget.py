@@ -25,6 +25,7 @@ from .ik import axis_angle, kabsch, local_rotations, min_rotation, rest_offsets
 from .rig import FOOT_SOURCES, Rig, load_rig
 from .skeleton import HUMANML3D, Skeleton, check_fps
 
+HEAD = HUMANML3D.joint_names.index("head")
 CONTACT_HEIGHT = 0.05       # m: a source toe below this is on the ground (mogo_eval's skating measure too)
 PLANT_MAX_DEG = 1.9         # the most a leg is swung to keep a planted foot in place (bone directions stay within it)
 PLANT_RELEASE_S = 0.25      # time constant of the swing fading out once the foot lifts
@@ -106,8 +107,10 @@ def retarget(joints, rig: "Rig | str", fps: float = 20.0, in_place: bool = False
     turn = np.zeros((T, B, 3, 3))
     for b in rig.order:
         s, p, spans = rig.sources[b], rig.parents[b], rig.spans[b]
-        if s < 0 or not spans:        # follows nothing, or ends a chain (head, hands, toes: the source's ends have no
-            turn[:, b] = turn[:, p] if p >= 0 else np.eye(3)     # turn of their own): keeps its rest pose on its parent
+        if s == HEAD and not spans:
+            turn[:, b] = _upright_head(rig, turn, b)
+        elif s < 0 or not spans:      # follows nothing, or ends a chain (hands, toes: the source's ends have no turn
+            turn[:, b] = turn[:, p] if p >= 0 else np.eye(3)     # of their own): keeps its rest pose on its parent
         elif len(spans) == 1:
             c = spans[0]
             rest_rig = _unit(rig.heads[c] - rig.heads[b])
@@ -140,6 +143,25 @@ def retarget(joints, rig: "Rig | str", fps: float = 20.0, in_place: bool = False
     positions = _forward(rig, turn, hips)
     return RigMotion(rig=rig, fps=fps, world_rotations=turn @ rig.rest_rotations[None], positions=positions,
                      scale=float(scale), in_place=in_place)
+
+
+def _upright_head(rig: Rig, turn: np.ndarray, head: int) -> np.ndarray:
+    """The head bone's turn when it ends its chain. HumanML3D's head joint sits ahead of its neck (38 to 62 degrees
+    from vertical on an upright person), so the rig's neck bone, which points where the source's neck points, leans
+    forward that much even when the person stands straight; a head bone kept on it would look at the floor. The head
+    keeps its rest pose on the chest instead, turned by the neck's bend from its mean over the motion: nods and head
+    turns stay, the standing lean does not."""
+    neck = rig.parents[head]
+    while rig.sources[neck] < 0:
+        neck = rig.parents[neck]
+    chest = rig.parents[neck]
+    while chest >= 0 and rig.sources[chest] < 0:
+        chest = rig.parents[chest]
+    base = turn[:, chest] if chest >= 0 else np.broadcast_to(np.eye(3), turn[:, neck].shape)
+    bend = np.swapaxes(base, -1, -2) @ turn[:, neck]                                   # (T, 3, 3)
+    u, _, vt = np.linalg.svd(bend.mean(0))                                              # the mean rotation
+    mean = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    return turn[:, neck] @ mean.T
 
 
 def _plant_feet(rig: Rig, turn: np.ndarray, hips: np.ndarray, pos: np.ndarray, scale: float, fps: float) -> None:
