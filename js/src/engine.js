@@ -11,6 +11,9 @@ import { BundleError, GRAPHS, fixedCache, graphFile } from './manifest.js';
 import { Tokenizer } from './tokenizer.js';
 import { createSession } from './io.js';
 
+/** A graph returned NaN or inf: its bundle is broken, whatever the input. */
+export class NonFiniteOutput extends BundleError {}
+
 const MAX_THREADS = 64;
 const TEXT_BATCH = 64;   // prompts per text-encoder call, as TextEncoderSession.encode
 
@@ -78,9 +81,20 @@ export class OrtBackend {
       if (emb.dims[1] !== E) {
         throw new BundleError(`text encoder returned width ${emb.dims[1]}, manifest model.text_dim is ${E}`);
       }
-      out.set(emb.data, i * E);
+      out.set(this.#finite('text_encoder', emb.data), i * E);
     }
     return out;
+  }
+
+  /** `data`, or a NonFiniteOutput naming the graph: NaN or inf must never reach a motion (as the Python engine). */
+  #finite(graph, data) {
+    let bad = 0;
+    for (let i = 0; i < data.length; i++) if (!Number.isFinite(data[i])) bad++;
+    if (bad) {
+      throw new NonFiniteOutput(`${graphFile(this.manifest, graph, this.variant).file}: the ${graph} graph produced NaN or `
+        + `inf (${bad} of ${data.length} values); the bundle is broken (its weights or its export)`);
+    }
+    return data;
   }
 
   /** The cache of `rows` rows before the first step: every past tensor empty. */
@@ -124,7 +138,7 @@ export class OrtBackend {
     };
     this.manifest.pastNames.forEach((name, i) => { feed[name] = past[i]; });
     const out = await this.sessions.step.run(feed);
-    return { logits: out.logits.data, past: this.manifest.presentNames.map((name) => out[name]) };
+    return { logits: this.#finite('step', out.logits.data), past: this.manifest.presentNames.map((name) => out[name]) };
   }
 
   /** The portable step: S tokens are S calls, each writing its slot; logits come back as (rows, S, L, K + 1). */
@@ -144,7 +158,8 @@ export class OrtBackend {
         position: new this.ort.Tensor('int64', new BigInt64Array(rows).fill(BigInt(past.length + s)), [rows]) };
       this.manifest.pastNames.forEach((name, i) => { feed[name] = cache[i]; });
       const out = await this.sessions.step.run(feed);
-      for (let r = 0; r < rows; r++) logits.set(out.logits.data.subarray(r * L * V, (r + 1) * L * V), (r * S + s) * L * V);
+      const data = this.#finite('step', out.logits.data);
+      for (let r = 0; r < rows; r++) logits.set(data.subarray(r * L * V, (r + 1) * L * V), (r * S + s) * L * V);
       cache = this.manifest.presentNames.map((name) => out[name]);
     }
     return { logits, past: { tensors: cache, length: past.length + S } };
@@ -167,8 +182,15 @@ export class OrtBackend {
     const L = this.dims.numLevels;
     const ids = new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [batch, tokens.length / (batch * L), L]);
     const { latent } = await this.sessions.lookup.run({ tokens: ids });
+    this.#finite('lookup', latent.data);
     const { features } = await this.sessions.decoder.run({ latent });
-    return features.data;
+    const T = tokens.length / (batch * L), want = [batch, T * this.dims.downsample, this.dims.featureDim];
+    if (features.dims.some((d, i) => d !== want[i])) {   // a wrong model.downsample would drop or invent frames
+      throw new BundleError(`${graphFile(this.manifest, 'decoder', this.variant).file}: decoded ${T} tokens to `
+        + `[${features.dims.slice(1)}] frames x features; manifest model.downsample ${this.dims.downsample} and `
+        + `model.feature_dim ${this.dims.featureDim} promise [${want.slice(1)}]`);
+    }
+    return this.#finite('decoder', features.data);
   }
 
   /** Free the sessions' native memory (the backend cannot be used afterwards). */

@@ -9,6 +9,7 @@
 export { MotionGenerator, FrameStream, MAX_SECONDS, checkTexts } from './generator.js';
 export { SamplingConfig } from './sampling.js';
 export { BundleError, parseManifest } from './manifest.js';
+export { NonFiniteOutput } from './engine.js';
 export { Bundle } from './bundle.js';
 export { fileLoader, urlLoader, LoadError } from './io.js';
 export { Tokenizer, TokenizerError } from './tokenizer.js';

@@ -266,6 +266,9 @@ function parseNormalization(f, model) {
     if (v.length !== model.featureDim || !v.every((x) => typeof x === 'number' && Number.isFinite(x))) {
       f.fail(key, `expected ${model.featureDim} finite numbers`);
     }
+    const least = Math.min(...v);
+    // features are scaled by std: 0 flattens a feature, < 0 mirrors it
+    if (key === 'std' && least <= 0) f.fail(key, `every value must be > 0, got ${least} at index ${v.indexOf(least)}`);
     stats[key] = Float64Array.from(v);
   }
   return stats;

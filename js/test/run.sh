@@ -32,6 +32,13 @@ fi
 
 "$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/toy"
 "$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/toy-clips" --seed 1 --clips
+# broken bundles: NaN weights in one graph each, hashes forged (tests/runtime/corrupt.py)
+BROKEN=""
+for graph in step.onnx decoder.onnx; do
+  rm -rf "$WORK/nan-$graph" && cp -r "$WORK/toy" "$WORK/nan-$graph"
+  (cd "$ROOT/tests/runtime" && "$PY" -c "import sys; from pathlib import Path; from corrupt import nan_weights; nan_weights(sys.argv[1])(Path(sys.argv[2]))" "$graph" "$WORK/nan-$graph")
+  BROKEN="$BROKEN $graph=$WORK/nan-$graph"
+done
 
 BUNDLES=(--bundle "toy=$WORK/toy" --bundle "toy-clips=$WORK/toy-clips")
 if [ "${MOGO_JS_TINY:-0}" = "1" ]; then
@@ -50,4 +57,4 @@ done
 
 "$PY" "$JS/test/make_reference.py" --out "$WORK/reference" "${BUNDLES[@]}"
 cd "$JS"
-MOGO_JS_REFERENCE="$WORK/reference" MOGO_JS_TOY="$WORK/toy" node --test test/*.test.mjs
+MOGO_JS_REFERENCE="$WORK/reference" MOGO_JS_TOY="$WORK/toy" MOGO_JS_BROKEN="$BROKEN" node --test test/*.test.mjs

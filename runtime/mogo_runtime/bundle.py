@@ -3,6 +3,11 @@
 `Bundle.load` trusts nothing: the manifest is parsed and checked field by field, every listed file must be a
 plain file inside the folder (no symlink, nothing outside) with the recorded size and sha256, and each graph
 must declare exactly the inputs and outputs the manifest promises. Every error names the file and the field.
+
+Graphs are opened from the bytes whose hash was checked (`read_verified`), never by path: what runs is what was
+verified, and onnxruntime reads nothing else. A graph must be self-contained: one whose tensors point to
+external-data files is refused (onnxruntime would read them from the model's folder, or for bytes the working
+folder, unlisted and unhashed).
 """
 from __future__ import annotations
 
@@ -12,9 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .manifest import DTYPES, GRAPHS, BundleError, Manifest, ModelDims
+from .onnxfile import ProtobufError, external_data
 
 __all__ = ["Bundle", "BundleError", "GRAPHS", "sha256_file"]
 MANIFEST_MAX_BYTES = 16 << 20   # a real manifest is ~30 KB; refuse to parse anything huge
+GRAPH_MAX_BYTES = (2 << 30) - 1  # protobuf's limit: onnxruntime cannot parse a larger self-contained ONNX file
 
 
 def sha256_file(path: Path) -> str:
@@ -78,15 +85,45 @@ class Bundle:
     def check_file(self, name: str, verify_hash: bool = True) -> Path:
         """A listed file: present, a regular file inside the bundle folder, of the recorded size and sha256."""
         size, digest = self.manifest.files[name]
+        fpath = self._listed_path(name)
+        if verify_hash and sha256_file(fpath) != digest:
+            raise BundleError(f"{fpath}: sha256 does not match the manifest (file corrupted or replaced)")
+        return fpath
+
+    def read_verified(self, name: str) -> bytes:
+        """A listed file's bytes, checked against the manifest's size and sha256 after reading (so the bytes used
+        are the bytes checked); an ONNX graph must also be self-contained (no external data)."""
+        size, digest = self.manifest.files[name]
+        fpath = self._listed_path(name)
+        if name.endswith(".onnx") and size > GRAPH_MAX_BYTES:
+            raise BundleError(f"{fpath}: {size} bytes; an ONNX graph without external data is at most "
+                              f"{GRAPH_MAX_BYTES} bytes")
+        with open(fpath, "rb") as f:
+            data = f.read(size + 1)
+        if len(data) != size or hashlib.sha256(data).hexdigest() != digest:
+            raise BundleError(f"{fpath}: changed since it was checked (size or sha256 no longer the manifest's)")
+        if name.endswith(".onnx"):
+            try:
+                outside = external_data(data)
+            except ProtobufError as e:
+                raise BundleError(f"{fpath}: not an ONNX file ({e})") from None
+            if outside:
+                raise BundleError(f"{fpath}: keeps tensors in external-data files ({', '.join(map(repr, outside))}); "
+                                  f"bundle graphs must be self-contained")
+        return data
+
+    def _listed_path(self, name: str) -> Path:
+        """The path of listed file `name`: a regular file directly in the bundle folder, of the recorded size."""
+        size, _ = self.manifest.files[name]
         fpath = self.path / name
         if fpath.is_symlink() or (fpath.exists() and not fpath.is_file()):
             raise BundleError(f"{fpath}: not a regular file (bundle files cannot be links or folders)")
         if not fpath.is_file():
             raise BundleError(f"{fpath}: listed in manifest 'files' but missing")
+        if fpath.resolve().parent != self.path.resolve():
+            raise BundleError(f"{fpath}: not directly inside the bundle folder {self.path}")
         if fpath.stat().st_size != size:
             raise BundleError(f"{fpath}: size {fpath.stat().st_size} bytes, manifest says {size}")
-        if verify_hash and sha256_file(fpath) != digest:
-            raise BundleError(f"{fpath}: sha256 does not match the manifest (file corrupted or replaced)")
         return fpath
 
     def graph_file(self, graph: str, variant: str = "fp32") -> Path:
@@ -110,11 +147,19 @@ class Bundle:
                 if fpath in seen:
                     continue
                 seen.add(fpath)
-                try:
-                    sess = ort.InferenceSession(str(fpath), opts, providers=["CPUExecutionProvider"])
-                except Exception as e:
-                    raise BundleError(f"{fpath}: onnxruntime cannot load it ({e})") from None
+                sess = self.session(graph, variant, opts)
                 self.check_session(graph, fpath, sess, variant)
+
+    def session(self, graph: str, variant: str, options):
+        """An onnxruntime CPU session of `variant`'s `graph`, from the verified bytes of its file."""
+        import onnxruntime as ort
+
+        fpath = self.graph_file(graph, variant)
+        data = self.read_verified(fpath.name)
+        try:
+            return ort.InferenceSession(data, options, providers=["CPUExecutionProvider"])
+        except Exception as e:   # onnxruntime raises its own types for a file it cannot parse
+            raise BundleError(f"{fpath}: onnxruntime cannot load it ({e})") from None
 
     def check_session(self, graph: str, fpath: Path, sess, variant: str = "fp32") -> None:
         """An onnxruntime session of `variant`'s `graph` declares the inputs/outputs (names, element types, ranks,

@@ -13,6 +13,10 @@ from .bundle import Bundle, BundleError
 from .manifest import GRAPHS, ModelDims
 from .text import TextEncoderSession, session_options
 
+class NonFiniteOutput(BundleError):
+    """A graph returned NaN or inf: its bundle is broken, whatever the input."""
+
+
 MAX_THREADS = 64   # onnxruntime segfaults on absurd thread counts; no CPU this runs on has more cores
 
 
@@ -36,8 +40,6 @@ class OrtBackend:
     """
 
     def __init__(self, bundle: Bundle, variant: str = "fp32", threads: int = 1):
-        import onnxruntime as ort
-
         if variant not in bundle.manifest.variants:
             raise ValueError(f"unknown variant {variant!r}; bundle {bundle.path} has {', '.join(bundle.variants)}")
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or not 1 <= threads <= MAX_THREADS:
@@ -54,14 +56,8 @@ class OrtBackend:
             raise BundleError(f"{bundle.graph_file('text_encoder', variant)}: embeds to {self.text.dim} values and "
                               f"cuts at {self.text.settings.max_length} tokens; manifest model.text_dim is "
                               f"{self.dims.text_dim}, text_encoder.max_length {manifest.text_encoder.max_length}")
-        opts, cpu = session_options(self.threads), ["CPUExecutionProvider"]
-        sessions = {}
-        for graph in ("step", "lookup", "decoder"):
-            path = bundle.graph_file(graph, variant)
-            try:
-                sessions[graph] = ort.InferenceSession(str(path), opts, providers=cpu)
-            except Exception as e:   # onnxruntime raises its own types for a file it cannot parse
-                raise BundleError(f"{path}: onnxruntime cannot load it ({e})") from None
+        opts = session_options(self.threads)
+        sessions = {graph: bundle.session(graph, variant, opts) for graph in ("step", "lookup", "decoder")}
         self.step_session, self.lookup_session, self.decoder_session = (sessions[g] for g in ("step", "lookup",
                                                                                                 "decoder"))
         # the sessions we run are the ones checked against the manifest (Bundle.load may skip its own check)
@@ -72,7 +68,7 @@ class OrtBackend:
         self.cache_heads = self.dims.num_levels * self.dims.n_heads   # [rows, L * n_heads, past, head_dim]
 
     def encode_text(self, texts: list[str]) -> np.ndarray:
-        return self.text.encode(texts)                                          # (B, text_dim)
+        return self._finite("text_encoder", self.text.encode(texts))           # (B, text_dim)
 
     def empty_past(self, rows: int) -> list[np.ndarray]:
         empty = np.zeros((rows, self.cache_heads, 0, self.dims.head_dim), np.float32)
@@ -82,15 +78,29 @@ class OrtBackend:
         feed = {"text_embedding": np.ascontiguousarray(text_emb, dtype=np.float32),
                 "tokens": np.ascontiguousarray(tokens, dtype=np.int64), **dict(zip(self.past_names, past))}
         out = self.step_session.run(self.output_names, feed)
-        return out[0], out[1:]                                                  # logits (B, S, L, K + 1), presents
+        return self._finite("step", out[0]), out[1:]                            # logits (B, S, L, K + 1), presents
 
     def lookup(self, tokens: np.ndarray) -> np.ndarray:
         (latent,) = self.lookup_session.run(["latent"], {"tokens": np.ascontiguousarray(tokens, dtype=np.int64)})
-        return latent                                                           # (B, T, latent_dim)
+        return self._finite("lookup", latent)                                   # (B, T, latent_dim)
 
     def decode(self, tokens: np.ndarray) -> np.ndarray:
         (features,) = self.decoder_session.run(["features"], {"latent": self.lookup(tokens)})
-        return features                                                         # (B, T * downsample, D)
+        want = (len(tokens), tokens.shape[1] * self.dims.downsample, self.dims.feature_dim)
+        if features.shape != want:   # a wrong model.downsample would otherwise drop or invent frames silently
+            raise BundleError(f"{self.bundle.graph_file('decoder', self.variant)}: decoded {tokens.shape[1]} tokens "
+                              f"to {features.shape[1:]} frames x features; manifest model.downsample "
+                              f"{self.dims.downsample} and model.feature_dim {self.dims.feature_dim} promise {want[1:]}")
+        return self._finite("decoder", features)                                # (B, T * downsample, D)
+
+    def _finite(self, graph: str, out: np.ndarray) -> np.ndarray:
+        """`out`, or NonFiniteOutput naming the graph: NaN or inf must never reach a motion, a file or a stream
+        (a present cache is not checked: its NaN shows in the next step's logits). Costs microseconds a call."""
+        if not np.isfinite(out).all():
+            raise NonFiniteOutput(f"{self.bundle.graph_file(graph, self.variant)}: the {graph} graph produced NaN or "
+                                  f"inf ({int((~np.isfinite(out)).sum())} of {out.size} values); the bundle is "
+                                  f"broken (its weights or its export)")
+        return out
 
 
 @dataclass(frozen=True)
@@ -132,7 +142,7 @@ class FixedCacheBackend(OrtBackend):
             feed = {"text_embedding": text_emb, "tokens": np.ascontiguousarray(tokens[:, s:s + 1]),
                     "position": np.full(rows, past.length + s, np.int64), **dict(zip(self.past_names, cache))}
             out = self.step_session.run(self.output_names, feed)
-            logits.append(out[0])                                               # (rows, 1, L, K + 1)
+            logits.append(self._finite("step", out[0]))                         # (rows, 1, L, K + 1)
             cache = out[1:]
         return np.concatenate(logits, axis=1), FixedCache(cache, past.length + steps)
 

@@ -399,6 +399,8 @@ def _parse_normalization(f: Fields, model: ModelDims) -> Normalization:
         if len(v) != model.feature_dim or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
                                                   and math.isfinite(x) for x in v):
             f.fail(key, f"expected {model.feature_dim} finite numbers")
+        if key == "std" and min(v) <= 0:   # features are scaled by it: 0 flattens a feature, < 0 mirrors it
+            f.fail(key, f"every value must be > 0, got {min(v)!r} at index {v.index(min(v))}")
         stats[key] = tuple(float(x) for x in v)
     return Normalization(**stats)
 
