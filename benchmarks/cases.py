@@ -7,6 +7,8 @@ Cases (each prints one JSON object as its last stdout line with --json):
           breakdown (text, step, sampling, decode, joints, loop), peak RSS
   torch   TorchGenerator from the checkpoints, KV-cached or recomputing the sequence every step (--no-kv-cache)
   cold    a fresh process: import mogo_runtime + load the bundle + build MotionGenerator, then the first frame
+  soak    one endless stream for --duration seconds of wall time, flat out, switching prompts every few seconds of
+          stream time: RSS and time per token at the end of every --interval (memory or time that creeps up)
 
 The orchestrator (`benchmarks.run`) sets OMP/OPENBLAS/MKL_NUM_THREADS for each process. Only `torch` imports
 torch, so the other processes' RSS is the runtime's alone.
@@ -46,11 +48,12 @@ def peak_rss_bytes() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024       # Linux: kilobytes
 
 
-def current_rss_bytes() -> int | None:
+def current_rss_bytes(field: str = "VmRSS") -> int | None:
+    """VmRSS (now) or VmHWM (peak) from /proc: getrusage's peak lags behind the current value at times."""
     try:
         with open("/proc/self/status") as f:
             for line in f:
-                if line.startswith("VmRSS:"):
+                if line.startswith(field + ":"):
                     return int(line.split()[1]) * 1024
     except OSError:
         pass
@@ -334,7 +337,71 @@ def case_cold(args) -> dict:
             "import_and_load": t4 - t0, "first_frame_after_load": t5 - t4, "peak_rss_bytes": peak_rss_bytes()}
 
 
-CASES = {"floor": case_floor, "step": case_step, "e2e": case_e2e, "torch": case_torch, "cold": case_cold}
+# ----------------------------------------------------------------------------------------------------------------
+# soak: one endless stream for minutes
+
+SOAK_PROMPTS = ("a person walks forward", "a person turns left", "a person waves with the right hand",
+                "a person jumps in place", "a person squats down slowly", "a person runs forward",
+                "a person kicks with the left leg", "a person sits down")
+SOAK_SWITCH_S = (4.0, 10.0)     # stream seconds between prompts, as a game changes a character's action
+SOAK_LIMIT = 1.1                # last interval / first, for both RSS and time per token
+
+
+def case_soak(args) -> dict:
+    """A game's character for `duration` seconds: one stream, never restarted, a new prompt (never the one before)
+    every SOAK_SWITCH_S seconds of motion, frames consumed as fast as they come. At the end of each `interval`
+    of wall time: RSS (current and peak) and the interval's wall time per token (sampling, decoding, the frame
+    loop and the switches' text encoding: what a consumer waits for). The first interval includes warm-up."""
+    import numpy as np
+    from mogo_runtime import MotionGenerator
+
+    gen = MotionGenerator(args.bundle, variant=args.variant, threads=args.threads)
+    base = {"variant": args.variant, "threads": args.threads, "duration_s": args.duration,
+            "interval_s": args.interval}
+    if not gen.endless:
+        return {**base, "skipped": f"{args.bundle} has no endless streams (no 'streaming' in its manifest)"}
+    fps = gen.dims.fps
+    rng = np.random.default_rng(args.seed)
+    lo, hi = (round(s * fps) for s in SOAK_SWITCH_S)
+    prompt = int(rng.integers(len(SOAK_PROMPTS)))
+    next_switch = int(rng.integers(lo, hi + 1))
+    rows, switches, frames = [], 0, 0
+    stream = gen.stream(SOAK_PROMPTS[prompt], seed=args.seed)
+    t0 = time.perf_counter()
+    mark, last_t, last_tokens, last_switches = t0 + args.interval, t0, 0, 0
+    end = t0 + args.duration
+    try:
+        for frame in stream:
+            frames += 1
+            if frame.index + 1 >= next_switch:
+                prompt = (prompt + 1 + int(rng.integers(len(SOAK_PROMPTS) - 1))) % len(SOAK_PROMPTS)
+                stream.set_prompt(SOAK_PROMPTS[prompt])
+                switches += 1
+                next_switch += int(rng.integers(lo, hi + 1))
+            now = time.perf_counter()
+            if now >= mark:
+                tokens = stream.tokens
+                rows.append({"interval": len(rows) + 1, "elapsed_s": now - t0, "tokens": tokens - last_tokens,
+                             "token_ms": 1e3 * (now - last_t) / max(1, tokens - last_tokens),
+                             "rss_bytes": current_rss_bytes() or peak_rss_bytes(),
+                             "peak_rss_bytes": current_rss_bytes("VmHWM") or peak_rss_bytes(),
+                             "switches": switches - last_switches, "stream_seconds": frames / fps})
+                last_t, last_tokens, last_switches = now, tokens, switches
+                mark += args.interval
+                if mark > end + 1e-6:
+                    break
+    finally:
+        stream.close()
+    first, last = rows[0], rows[-1]
+    out = {**base, "rows": rows, "tokens": stream.tokens, "switches": switches, "stream_seconds": frames / fps,
+           "rss_ratio": last["rss_bytes"] / first["rss_bytes"], "token_time_ratio": last["token_ms"] / first["token_ms"],
+           "limit": SOAK_LIMIT}
+    out["met"] = out["rss_ratio"] <= SOAK_LIMIT and out["token_time_ratio"] <= SOAK_LIMIT
+    return out
+
+
+CASES = {"floor": case_floor, "step": case_step, "e2e": case_e2e, "torch": case_torch, "cold": case_cold,
+         "soak": case_soak}
 
 
 def main(argv=None) -> int:
@@ -353,7 +420,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-kv-cache", dest="kv_cache", action="store_false", help="torch: recompute every step")
     ap.add_argument("--quick", action="store_true", help="floor: fewer repetitions (smoke tests)")
     ap.add_argument("--profile", action="store_true", help="e2e/torch: add one instrumented generation")
-    ap.add_argument("--seed", type=int, default=0, help="e2e/torch: first seed (repeat i uses seed + i)")
+    ap.add_argument("--seed", type=int, default=0, help="e2e/torch: first seed (repeat i uses seed + i); soak: its seed")
+    ap.add_argument("--duration", type=float, default=600.0, help="soak: seconds of wall time")
+    ap.add_argument("--interval", type=float, default=60.0, help="soak: seconds between measurements")
     ap.add_argument("--json", action="store_true", help="print the result as one JSON line")
     args = ap.parse_args(argv)
     result = {"case": args.case, **CASES[args.case](args)}

@@ -5,7 +5,8 @@
 Writes benchmarks/results/<timestamp>.json and benchmarks/results/latest.md (and prints the table). Each round runs
 every configuration once, each in a fresh process (`benchmarks.cases`); rounds repeat, so load drift on a shared
 machine spreads over all configurations alike. Absolute times are context only; the goals are judged on ratios
-measured within one run.
+measured within one run. After the rounds, a soak: one endless stream with prompt switches for --soak seconds
+(default 600), RSS and time per token each minute (benchmarks/README.md).
 """
 from __future__ import annotations
 
@@ -113,7 +114,7 @@ def merge(results: list[dict]) -> list[dict]:
     """Processes of the same configuration (one per round) -> one result, their samples pooled."""
     groups: dict[tuple, list[dict]] = {}
     for r in results:
-        if "error" in r or r["case"] == "cold":
+        if "error" in r or r["case"] in ("cold", "soak"):
             continue
         key = (r["case"], r.get("variant"), r["threads"], r.get("batch"), r.get("engine"), r.get("kv_cache"))
         groups.setdefault(key, []).append(r)
@@ -303,8 +304,9 @@ def summarize(results: list[dict], manifest: Manifest, bundle: Path, opts) -> di
                 ratio(f"step {v} {th} thread(s), past {T}: batch {max(opts.batches)} ÷ (batch 1 × "
                       f"{max(opts.batches)})", _med(a["seconds"]), _med(b1["seconds"]) * max(opts.batches),
                       "< 1: batching prompts pays")
+    soak = next((r for r in results if r["case"] == "soak" and "error" not in r), None)
     return {"goals": goals, "context": context, "steps": steps, "e2e": e2e, "cold_start": cold, "floor": floors,
-            "bundle_bytes": variant_bytes, "step_work": work, "motion_tokens": T,
+            "bundle_bytes": variant_bytes, "step_work": work, "motion_tokens": T, "soak": soak,
             "errors": [r for r in results if "error" in r]}
 
 
@@ -403,9 +405,35 @@ def markdown(report: dict) -> str:
     w = summ["step_work"]
     out += ["", f"Step matmul weights: {w['per_stream']:,} per stream row, {w['per_prompt']:,} per prompt, "
                 f"{w['per_head_row']:,} per stream × head (relative positions), from {w['source']}."]
+    out += soak_table(summ.get("soak"))
     if summ["errors"]:
         out += ["", "## Failed cases", ""] + [f"- {e.get('case')}: {e['error'][:300]}" for e in summ["errors"]]
     return "\n".join(out) + "\n"
+
+
+def soak_table(soak: dict | None) -> list[str]:
+    """The soak's Markdown section: one row per interval, then the check (last interval vs first)."""
+    if soak is None:
+        return []
+    out = ["", f"## Soak: one endless stream, prompt switches ({soak['variant']}, {soak['threads']} thread)", ""]
+    if "skipped" in soak:
+        return out + [f"Skipped: {soak['skipped']}."]
+    minutes = soak["interval_s"] == 60
+    every = "minute" if minutes else f"{soak['interval_s']:g} s"
+    out += [f"{soak['duration_s']:.0f} s of wall time, frames consumed as fast as they come, a new prompt every "
+            f"4-10 s of stream time: {soak['switches']:,} switches, {soak['tokens']:,} tokens, "
+            f"{soak['stream_seconds'] / 3600:.1f} h of motion. Measured at the end of each "
+            f"{every}; ms per token = the interval's wall "
+            "time / its tokens (the first interval includes warm-up).", "",
+            f"| {'minute' if minutes else 'interval'} | tokens | ms per token | RSS MB | peak RSS MB | switches |",
+            "|---|---|---|---|---|---|"]
+    for r in soak["rows"]:
+        out.append(f"| {r['interval']} | {r['tokens']:,} | {r['token_ms']:.3f} | {r['rss_bytes'] / 1e6:.1f} | "
+                   f"{r['peak_rss_bytes'] / 1e6:.1f} | {r['switches']} |")
+    verdict = "met" if soak["met"] else "**missed**"
+    out += ["", f"Last ÷ first: ms per token {soak['token_time_ratio']:.3f}×, RSS {soak['rss_ratio']:.3f}× "
+                f"(both ≤ {soak['limit']:g}×: {verdict})."]
+    return out
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -434,10 +462,17 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="smoke test: 1 repeat, few calls")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     ap.add_argument("--timeout", type=float, default=600, help="seconds per case")
+    ap.add_argument("--soak", type=float, default=None,
+                    help="seconds of the soak (one endless stream with prompt switches, after the rounds; default "
+                         "600, --quick 4; 0 skips it)")
+    ap.add_argument("--soak-interval", type=float, default=None,
+                    help="seconds between the soak's measurements (default 60, --quick 1)")
     opts = ap.parse_args(argv)
     if opts.quick:
         opts.repeats, opts.iters = 1, 3
         opts.cold_repeats = opts.cold_repeats or 1
+    opts.soak = (4.0 if opts.quick else 600.0) if opts.soak is None else opts.soak
+    opts.soak_interval = opts.soak_interval or (1.0 if opts.quick else 60.0)
     opts.cold_repeats = opts.cold_repeats or opts.repeats
     opts.bundle = opts.bundle if opts.bundle.is_absolute() else (Path.cwd() / opts.bundle)
     opts.checkpoints = opts.checkpoints if opts.checkpoints.is_absolute() else (Path.cwd() / opts.checkpoints)
@@ -473,6 +508,14 @@ def main(argv=None) -> int:
             print(f"[{done:3d}/{n_jobs}] round {rnd + 1}: {label:40s} {status}  "
                   f"(elapsed {time.perf_counter() - t0:.0f} s)", flush=True)
         rounds = rnd + 1
+    if opts.soak > 0:
+        print(f"benchmarks: soak, one endless stream for {opts.soak:.0f} s", flush=True)
+        r = run_case("soak", ["--bundle", str(opts.bundle), "--variant", "int8" if "int8" in opts.variants else
+                              opts.variants[0], "--duration", str(opts.soak), "--interval", str(opts.soak_interval)],
+                     1, opts.soak + opts.timeout)
+        results.append(r)
+        print(f"benchmarks: soak {'ERROR ' + r['error'][:200] if 'error' in r else 'done'}  "
+              f"(elapsed {time.perf_counter() - t0:.0f} s)", flush=True)
     total = time.perf_counter() - t0
 
     versions = {}
@@ -494,6 +537,7 @@ def main(argv=None) -> int:
             "per_process": opts.per_process,
             "cold_repeats": opts.cold_repeats, "iters": opts.iters, "threads": opts.threads, "batches": opts.batches,
             "variants": opts.variants, "quick": opts.quick, "notes": notes, "total_seconds": total,
+            "soak_seconds": opts.soak, "soak_interval": opts.soak_interval,
             "command": "python -m benchmarks.run " + " ".join(sys.argv[1:] if argv is None else argv),
             "model": manifest.model.to_dict(), "sampling_defaults": manifest.sampling_defaults.to_dict()}
     report = {"meta": meta, "summary": summarize(results, manifest, opts.bundle, opts), "results": results}

@@ -222,7 +222,7 @@ def load_trained(folder: str | Path) -> TrainedModels:
         vq_payload=_envelope(vq_payload), transformer_payload=_envelope(tr_payload))
 
 
-_TRAINING_STATE = ("optimizer", "torch_rng", "numpy_rng")
+_TRAINING_STATE = ("optimizer", "torch_rng", "numpy_rng", "val_rng")
 
 
 def _envelope(payload: dict) -> dict:

@@ -4,7 +4,10 @@
 
 writes `vq.pt`, `tokens.npz`, `captions.npz` (cached caption embeddings) and `transformer.pt` into --out.
 Each phase shows a progress bar (loss, throughput, ETA), validates periodically, checkpoints atomically, and
-resumes from its checkpoint after an interruption; a finished phase is skipped on the next run.
+resumes from its checkpoint after an interruption (a kill -9 included: files are written as mogo_runtime/files.py
+says, so the folder holds only whole files); a finished phase is skipped on the next run. A resumed run ends with
+the same weights, bit for bit, as an uninterrupted one with the same torch thread count: the checkpoint holds the
+optimiser and every RNG the next steps draw from (_train_state); tests/export/test_train_kill9.py checks it.
 """
 from __future__ import annotations
 
@@ -33,10 +36,11 @@ def _set_lr(opt, lr):
         g["lr"] = lr
 
 
-def _resume(path: Path, kind: str, model, opt) -> tuple[int, np.random.Generator | None]:
-    """Restore model, optimiser and sampling RNG from an unfinished checkpoint; -> (next step, rng)."""
+def _resume(path: Path, kind: str, model, opt) -> tuple[int, np.random.Generator | None, dict | None]:
+    """Restore model, optimiser and RNGs from an unfinished checkpoint; -> (next step, sampling rng, validation
+    rng state or None: a checkpoint from before it was saved)."""
     if not path.exists():
-        return 0, None
+        return 0, None, None
     payload = read_checkpoint(path, kind)
     model.load_state_dict(payload["model"])
     train = payload["train"]
@@ -44,12 +48,18 @@ def _resume(path: Path, kind: str, model, opt) -> tuple[int, np.random.Generator
     torch.set_rng_state(train["torch_rng"])
     rng = np.random.default_rng()
     rng.bit_generator.state = train["numpy_rng"]
-    return int(train["step"]), rng
+    return int(train["step"]), rng, train.get("val_rng")
 
 
-def _train_state(step, opt, rng, done: bool) -> dict:
-    return {"step": step, "optimizer": opt.state_dict(), "torch_rng": torch.get_rng_state(),
-            "numpy_rng": rng.bit_generator.state, "done": done}
+def _train_state(step, opt, rng, done: bool, val_rng: np.random.Generator | None = None) -> dict:
+    """Everything the next steps depend on besides the weights: with it a resumed run takes the same steps, on
+    the same batches, with the same validation batches, as one that was never interrupted (bit for bit, at the
+    same torch thread count)."""
+    state = {"step": step, "optimizer": opt.state_dict(), "torch_rng": torch.get_rng_state(),
+             "numpy_rng": rng.bit_generator.state, "done": done}
+    if val_rng is not None:
+        state["val_rng"] = val_rng.bit_generator.state
+    return state
 
 
 def _is_done(path: Path, kind: str) -> bool:
@@ -109,7 +119,7 @@ def train_vq(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progre
     torch.manual_seed(seed)
     vq = vqmodel.MoSAVQ(cfg)
     opt = torch.optim.AdamW(vq.parameters(), lr=sched.lr, betas=(0.9, 0.99), weight_decay=0.0)
-    start, rng = _resume(path, "vq", vq, opt)
+    start, rng, _ = _resume(path, "vq", vq, opt)      # VQ validation uses whole clips: no RNG
     rng = rng or np.random.default_rng(seed)
     # the fields checkpoint.load_trained requires (checkpoint.VQ_META), plus the run's own record
     meta = {"mean": mean.tolist(), "std": std.tolist(), "fps": train_ds.fps, "dataset": str(data), "preset": preset,
@@ -268,9 +278,11 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
     no_decay = [p for n, p in model.named_parameters() if p.dim() < 2]
     opt = torch.optim.AdamW([{"params": decay, "weight_decay": 0.01}, {"params": no_decay, "weight_decay": 0.0}],
                             lr=sched.lr, betas=(0.9, 0.99))
-    start, rng = _resume(path, "transformer", model, opt)
+    start, rng, val_state = _resume(path, "transformer", model, opt)
     rng = rng or np.random.default_rng(seed)
     val_rng = np.random.default_rng(seed + 1)
+    if val_state is not None:      # else a fresh one: an old checkpoint resumes, its later val metrics differ
+        val_rng.bit_generator.state = val_state
     # the fields checkpoint.load_trained requires (checkpoint.TRANSFORMER_META), plus the run's own record
     meta = {"text_encoder": text_encoder, "max_tokens": int(max_tokens * 1.25) + 1, "dataset": str(data),
             "preset": preset, "vq_step": vq_payload["train"]["step"],
@@ -305,7 +317,7 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
             meta["val"] = {"loss": vloss.item(), "acc": vstats["acc"].item()}
             bar.write(f"transformer step {step + 1}: val loss {vloss.item():.3f}, acc {vstats['acc'].item():.3f}")
         if (step + 1) % sched.ckpt_every == 0 or last:
-            save_checkpoint(path, "transformer", cfg, model, _train_state(step + 1, opt, rng, last), meta)
+            save_checkpoint(path, "transformer", cfg, model, _train_state(step + 1, opt, rng, last, val_rng), meta)
     return path
 
 

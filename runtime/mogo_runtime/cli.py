@@ -265,12 +265,18 @@ def cmd_stream(args) -> int:
 
 
 def _read_lines(stream) -> queue.Queue:
-    """Lines of `stream` as they arrive, read by a daemon thread, so frames keep flowing while stdin is quiet."""
+    """Lines of `stream` as they arrive, read by a daemon thread, so frames keep flowing while stdin is quiet.
+
+    A real stdin is read as bytes and decoded with surrogateescape: a line that is not UTF-8 then reaches the prompt
+    check (`mogo: error:`) instead of killing this thread with a traceback, as a strict decoder would."""
     lines: queue.Queue = queue.Queue()
 
     def read():
-        for line in stream:
-            lines.put(line.rstrip("\n"))
+        raw = getattr(stream, "buffer", None)
+        for line in stream if raw is None else raw:
+            if isinstance(line, bytes):
+                line = line.decode("utf-8", "surrogateescape")
+            lines.put(line.rstrip("\r\n"))     # bytes keep the "\r" of a Windows line end
 
     threading.Thread(target=read, daemon=True).start()
     return lines

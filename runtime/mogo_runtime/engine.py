@@ -11,13 +11,12 @@ import numpy as np
 
 from .bundle import Bundle, BundleError
 from .manifest import GRAPHS, ModelDims
-from .text import TextEncoderSession, session_options
+from .text import TextEncoderSession, check_threads, session_options
 
 class NonFiniteOutput(BundleError):
     """A graph returned NaN or inf: its bundle is broken, whatever the input."""
 
 
-MAX_THREADS = 64   # onnxruntime segfaults on absurd thread counts; no CPU this runs on has more cores
 
 
 def open_backend(bundle: Bundle, variant: str = "fp32", threads: int = 1):
@@ -42,14 +41,13 @@ class OrtBackend:
     def __init__(self, bundle: Bundle, variant: str = "fp32", threads: int = 1):
         if variant not in bundle.manifest.variants:
             raise ValueError(f"unknown variant {variant!r}; bundle {bundle.path} has {', '.join(bundle.variants)}")
-        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or not 1 <= threads <= MAX_THREADS:
-            raise ValueError(f"threads must be an int in [1, {MAX_THREADS}], got {threads!r}")
-        self.bundle, self.variant, self.threads = bundle, variant, int(threads)
+        self.bundle, self.variant, self.threads = bundle, variant, check_threads(threads)
         self.dims: ModelDims = bundle.dims
         manifest = bundle.manifest
         try:
-            self.text = TextEncoderSession(bundle.graph_file("text_encoder", variant),
-                                           bundle.file(manifest.text_encoder.tokenizer), self.threads)
+            graph, tokenizer = bundle.graph_file("text_encoder", variant), bundle.file(manifest.text_encoder.tokenizer)
+            self.text = TextEncoderSession(bundle.read_verified(graph.name), bundle.read_verified(tokenizer.name),
+                                           self.threads, names=(str(graph), str(tokenizer)))
         except ValueError as e:
             raise BundleError(str(e)) from None
         if self.text.dim != self.dims.text_dim or self.text.settings.max_length != manifest.text_encoder.max_length:

@@ -16,6 +16,7 @@ reference; the engine is `engine.py`. This module checks what a user asks for an
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator
@@ -26,8 +27,8 @@ from .bundle import Bundle
 from .decoding import GenerationTask, expand_seeds
 from .engine import open_backend
 from .motion import Motion
-from .sampling import SamplingConfig
-from .text import check_texts
+from .sampling import SamplingConfig, as_real
+from .text import check_texts, check_threads
 
 MAX_SECONDS = 3600.0   # the longest fixed length on an endless bundle: tokens and frames are kept for the whole motion
 
@@ -45,6 +46,9 @@ class Frame:
     joints: np.ndarray            # (J, 3) metres, y up
 
 
+SWITCH_HISTORY = 10_000   # ~1 MB of prompt switches kept per stream (a switch every 4 s: 11 hours)
+
+
 class FrameStream:
     """What `MotionGenerator.stream` returns: an iterator of Frames, the prompt it follows now and its aligned
     text, and, on a bundle trained for endless streams, `set_prompt` to change what the character does."""
@@ -54,7 +58,8 @@ class FrameStream:
         self._gen, self.text, self.aligned_text = gen, text, aligned_text
         self._loop = task.loop(emb, [seed]) if task.streaming is not None else None
         self._frames = gen._frames(task.stream(emb, seed, chunk, self._loop))
-        self.switches: list[tuple[int, str, str | None]] = []   # (token, text, aligned text) of each set_prompt
+        # (token, text, aligned text) of the last SWITCH_HISTORY set_prompt calls: a stream runs for days
+        self.switches: deque[tuple[int, str, str | None]] = deque(maxlen=SWITCH_HISTORY)
 
     def __iter__(self) -> "FrameStream":
         return self
@@ -73,7 +78,7 @@ class FrameStream:
             raise ValueError("this bundle was not trained for endless streams (its manifest has no 'streaming' "
                              "section), so its streams cannot change prompt")
         if not isinstance(text, str):
-            raise TypeError(f"set_prompt() takes one prompt (str), got {type(text).__name__}")
+            raise ValueError(f"set_prompt() takes one prompt (str), got {type(text).__name__}")
         emb, aligned = self._gen._condition(check_texts([text]), align)
         self._loop.set_prompt(emb)
         self.text, self.aligned_text = text, aligned[0]
@@ -86,8 +91,8 @@ class FrameStream:
 class MotionGenerator:
     """Generate motions from text with one variant of a bundle.
 
-    `aligner`: the text condition alignment `align=True` uses (mogo_runtime.tca); default the bundle's
-    OfflineAligner.
+    `threads`: onnxruntime threads per graph, an int from 1 to `text.MAX_THREADS` (64). `aligner`: the text
+    condition alignment `align=True` uses (mogo_runtime.tca); default the bundle's OfflineAligner.
     """
 
     def __init__(self, bundle: Bundle | str | Path, variant: str = "fp32", threads: int = 1,
@@ -96,6 +101,7 @@ class MotionGenerator:
         # The backend checks the sessions it opens against the manifest, so loading skips its own graph check.
         if not isinstance(variant, str) or not variant:
             raise ValueError(f"variant must be a variant name such as 'fp32', 'int8' or 'portable', got {variant!r}")
+        check_threads(threads)     # before the bundle is read and hashed
         self.bundle = (bundle if isinstance(bundle, Bundle) else
                        Bundle.load(bundle, variants=[variant], check_graphs=False))
         self.backend = open_backend(self.bundle, variant, threads)
@@ -136,7 +142,11 @@ class MotionGenerator:
         follows each prompt from its start. `sampling` None: the bundle's sampling defaults. `align=True` (or an
         Aligner) rewrites each prompt into the training captions' style first (TCA); the motion's
         `aligned_text` says what the model was conditioned on. `progress(step, limit)` is called after every step.
+        A prompt is Unicode text of at most `text.MAX_PROMPT_CHARS` (10,000) characters (ValueError otherwise).
         """
+        if not isinstance(text, (str, list, tuple)):
+            raise ValueError(f"text must be a prompt (str), a list of prompts or a timeline [(prompt, start_seconds), "
+                             f"...], got {type(text).__name__}")
         if isinstance(text, (list, tuple)) and text and all(isinstance(t, tuple) for t in text):
             return self._timeline(list(text), seconds, seed, sampling, align, progress)
         texts = check_texts([text] if isinstance(text, str) else text)
@@ -178,7 +188,7 @@ class MotionGenerator:
         is asked for; the returned stream's `aligned_text` says what the model follows.
         """
         if not isinstance(text, str):
-            raise TypeError(f"stream() takes one prompt (str), got {type(text).__name__}; use generate() for a batch")
+            raise ValueError(f"stream() takes one prompt (str), got {type(text).__name__}; use generate() for a batch")
         task, emb, seeds, aligned = self._prepare(check_texts([text]), seconds, seed, sampling, align)
         return FrameStream(self, task, emb, seeds[0], chunk, text, aligned[0])
 
@@ -229,11 +239,7 @@ class MotionGenerator:
         most, limit = (MAX_SECONDS, "endless streams") if self.endless else (self.max_seconds, "this bundle")
         allowed = (f"between {per_token:g} and {most:g} seconds for {limit} ({self.dims.downsample} frames per "
                    f"token at {self.dims.fps:g} fps)")
-        if isinstance(seconds, (bool, np.bool_)) or not isinstance(seconds, (int, float, np.integer, np.floating)):
-            raise ValueError(f"seconds must be a number {allowed}, got {seconds!r}")
-        value = float(seconds)
-        if not math.isfinite(value) or not per_token / 2 <= value <= most + per_token:
-            raise ValueError(f"seconds must be {allowed}, got {seconds!r}")
+        value = as_real("seconds", seconds, allowed, per_token / 2, most + per_token)
         tokens = math.floor(value / per_token + 0.5 + 1e-9)   # the epsilon keeps 6.0 s from landing just below
         if not 1 <= tokens <= (round(most / per_token) if self.endless else self.max_tokens):
             raise ValueError(f"seconds must be {allowed}, got {seconds!r}")

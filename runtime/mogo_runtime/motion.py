@@ -4,8 +4,9 @@
     motion.save("walk.bvh")      # also .npy (joints), .json (joint positions), .gif / .mp4 (previews)
     motion.save("walk.glb", rig="mixamo")   # on a game rig (rig.py): .glb and .bvh; in_place=True drops the path
 
-Every file is written under a temporary name beside its target and renamed into place, so a reader (a game
-watching a folder, a crashed run) never sees half a file.
+Every file appears whole or not at all (files.py): a reader (a game watching a folder, a crashed run) never sees
+half a file, a process killed mid-write leaves no stray file, and a failed write (a full disk) raises OutputError
+naming the file.
 """
 from __future__ import annotations
 
@@ -13,21 +14,16 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO, Callable
 
 import numpy as np
 
 from .features import FeatureLayout
-from .files import write_atomic
+from .files import OutputError, write_atomic
 from .skeleton import Skeleton
 
 SAVE_FORMATS = (".npy", ".json", ".bvh", ".glb", ".gif", ".mp4")
 RIG_FORMATS = (".bvh", ".glb")     # the formats a motion can be written to on another rig
 JSON_DECIMALS = 4   # metres: 0.1 mm, far below what a viewer or a game can show, and keeps files small
-
-
-class OutputError(OSError):
-    """A file cannot be written where it was asked to go (missing permission, a parent that is a file...)."""
 
 
 @dataclass
@@ -65,10 +61,10 @@ class Motion:
         if (rig is not None or in_place) and suffix not in RIG_FORMATS:
             raise ValueError(f"{path}: a rig and in_place apply to {' and '.join(RIG_FORMATS)} files, not {suffix}")
         if suffix == ".npy":
-            _write_atomic(path, lambda f: np.save(f, np.asarray(self.joints, np.float32), allow_pickle=False))
+            write_atomic(path, lambda f: np.save(f, np.asarray(self.joints, np.float32), allow_pickle=False))
         elif suffix == ".json":
             data = json.dumps(self.to_dict(), separators=(",", ":")).encode()
-            _write_atomic(path, lambda f: f.write(data))
+            write_atomic(path, lambda f: f.write(data))
         elif suffix == ".glb" or rig is not None or in_place:
             from .retarget import retarget
             from .rig import DEFAULT_RIG
@@ -79,8 +75,8 @@ class Motion:
                 data = glb_bytes(anim, name=self.text, extras={"text": self.text, "seed": int(self.seed)})
             else:
                 data = anim.to_bvh_text().encode("ascii")
-            _write_atomic(path, lambda f: f.write(data))
-        elif suffix == ".bvh":   # the writers below replace their file atomically themselves
+            write_atomic(path, lambda f: f.write(data))
+        elif suffix == ".bvh":   # the writers below go through write_atomic themselves
             from .bvh import write_bvh
             write_bvh(path, self.joints, self.skeleton, fps=self.fps)
         else:  # .gif, .mp4
@@ -110,13 +106,6 @@ def check_output_path(path: str | Path) -> str:
     if not os.access(path.parent, os.W_OK | os.X_OK):
         raise OutputError(f"{path}: folder {path.parent} is not writable")
     return suffix
-
-
-def _write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
-    try:
-        write_atomic(path, write)
-    except OSError as e:
-        raise OutputError(f"{path}: cannot write it ({e.strerror or e})") from None
 
 
 class RootIntegrator:

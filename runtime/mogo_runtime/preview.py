@@ -9,7 +9,6 @@ so writing a GIF needs no colour quantisation and a 200-frame clip takes a fract
 from __future__ import annotations
 
 import math
-import os
 import subprocess
 import tempfile
 from dataclasses import dataclass
@@ -18,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from .files import temp_path, write_atomic
+from .files import OutputError, staged_output, write_atomic
 from .skeleton import HUMANML3D, Skeleton, check_fps
 
 # Palette indices and colours.
@@ -33,6 +32,12 @@ class Camera:
     elevation_deg: float = 18.0   # above the horizon
     grid_step: float = 0.5        # metres between floor lines
     head_radius: float = 0.09     # metres
+
+
+class PreviewError(OutputError, RuntimeError):
+    """ffmpeg could not be run, or failed writing the video; the message names the file. An OutputError (an
+    OSError) like every other failure to write an output, so `mogo` reports it in one line, and a RuntimeError
+    as it always was."""
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -95,30 +100,33 @@ def render_mp4(path, joints, skeleton: Skeleton = HUMANML3D, fps: float = 20.0, 
     ffmpeg = imageio_ffmpeg.get_ffmpeg_exe()
     frames = render_frames(joints, skeleton, fps, title, size, camera)
     path = Path(path)
-    tmp = temp_path(path)
     W, H = size
-    cmd = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{W}x{H}",
-           "-r", f"{fps:g}", "-i", "-", "-an", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2",  # yuv420p needs even sizes
-           "-pix_fmt", "yuv420p", "-movflags", "+faststart", "-f", "mp4", str(tmp)]
-    try:
-        with tempfile.TemporaryFile() as err:  # a file, not a pipe: ffmpeg can never block on stderr
-            try:
-                proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=err)
-            except OSError as e:
-                raise RuntimeError(f"cannot run ffmpeg {ffmpeg!r} to write {path}: {e.strerror or e}") from None
+    # ffmpeg writes the staged file itself (by a name that reaches our unnamed file), so a kill -9 of this process
+    # leaves nothing in the folder either: ffmpeg, orphaned, finishes into a file that disappears with it
+    with staged_output(path) as out, tempfile.TemporaryFile() as err:  # stderr to a file: ffmpeg never blocks on it
+        cmd = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{W}x{H}",
+               "-r", f"{fps:g}", "-i", "-", "-an", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2",  # yuv420p: even sizes
+               "-pix_fmt", "yuv420p", "-movflags", "+faststart", "-f", "mp4", out.external_name]
+        try:
+            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=err, pass_fds=out.pass_fds)
+        except OSError as e:
+            raise PreviewError(f"cannot run ffmpeg {ffmpeg!r} to write {path}: {e.strerror or e}") from None
+        try:
             try:
                 for f in frames:
                     proc.stdin.write(f.convert("RGB").tobytes())
                 proc.stdin.close()
             except BrokenPipeError:
                 pass  # ffmpeg died; its exit code and stderr say why
-            if proc.wait() != 0:
-                err.seek(0)
-                raise RuntimeError(f"ffmpeg failed (exit {proc.returncode}) writing {path}: "
-                                   f"{err.read().decode(errors='replace')[-2000:]}")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+            code = proc.wait()
+        except BaseException:
+            proc.kill()      # interrupted: no ffmpeg left encoding a file nobody will keep
+            proc.wait()
+            raise
+        if code != 0:
+            err.seek(0)
+            raise PreviewError(f"ffmpeg failed (exit {code}) writing {path}: "
+                               f"{err.read().decode(errors='replace')[-2000:]}")
     return path
 
 

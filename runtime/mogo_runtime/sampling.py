@@ -6,18 +6,44 @@ generator and the onnxruntime runtime, and a seed means the same tokens in both.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 
-def _number(name: str, value, optional: bool = False) -> float | None:
-    """A real number (Python or numpy scalar), or None where allowed; bools and strings are refused."""
-    if value is None and optional:
-        return None
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a number{' or None' if optional else ''}, got {value!r}")
-    return float(value)
+def shown(value, limit: int = 60) -> str:
+    """repr for an error message: cut short, and safe for an int too long for str() (which raises ValueError)."""
+    try:
+        text = repr(value)
+    except ValueError:
+        return f"an int of {value.bit_length()} bits"
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def as_real(name: str, value, must: str, lo: float = -math.inf, hi: float = math.inf) -> float:
+    """`value` as a float in [lo, hi], else ValueError "{name} must be [a number] {must}, got ...".
+
+    Any real scalar is a number here (Python, numpy, Fraction); a bool is not (True would run as 1), nor a
+    string, nor an int too large for a float (float() raises OverflowError on it). NaN and infinity are numbers
+    outside every range."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} must be a number {must}, got {shown(value)}")
+    try:
+        x = float(value)
+    except OverflowError:
+        x = math.inf
+    if not (math.isfinite(x) and lo <= x <= hi):
+        raise ValueError(f"{name} must be {must}, got {shown(value)}")
+    return x
+
+
+def as_int(name: str, value, must: str, lo: int, hi: int | None = None) -> int:
+    """`value` as an int in [lo, hi] (any integral scalar, numpy's included, never a bool), else ValueError."""
+    if (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral)
+            or not lo <= value <= (math.inf if hi is None else hi)):
+        raise ValueError(f"{name} must be {must}, got {shown(value)}")
+    return int(value)
 
 
 @dataclass(frozen=True)
@@ -29,20 +55,16 @@ class SamplingConfig:
 
     def __post_init__(self):
         # one check for the API, the CLI and the manifest; values are stored as plain Python numbers
-        temperature = _number("temperature", self.temperature)
-        top_p, guidance = _number("top_p", self.top_p, optional=True), _number("guidance", self.guidance)
+        temperature = as_real("temperature", self.temperature, "in [0, 100] (0 = greedy)", 0, 100)
         top_k = self.top_k
-        if top_k is not None and (isinstance(top_k, (bool, np.bool_)) or not isinstance(top_k, (int, np.integer))
-                                  or top_k < 0):
-            raise ValueError(f"top_k must be an int >= 1 (0 or None: no top-k cut), got {top_k!r}")
-        if not math.isfinite(temperature) or not 0 <= temperature <= 100:
-            raise ValueError(f"temperature must be in [0, 100] (0 = greedy), got {self.temperature!r}")
-        if top_p is not None and not 0.0 < top_p <= 1.0:
-            raise ValueError(f"top_p must be in (0, 1] or None, got {self.top_p!r}")
-        if not math.isfinite(guidance) or not 0 <= guidance <= 100:
-            raise ValueError(f"guidance must be in [0, 100] (1 = off), got {self.guidance!r}")
+        if top_k is not None:
+            top_k = as_int("top_k", top_k, "an int >= 1 (0 or None: no top-k cut)", 0) or None
+        top_p = self.top_p
+        if top_p is not None:   # (0, 1]: ulp(0) is the smallest float above 0
+            top_p = as_real("top_p", top_p, "in (0, 1] or None", math.ulp(0.0), 1.0)
+        guidance = as_real("guidance", self.guidance, "in [0, 100] (1 = off)", 0, 100)
         object.__setattr__(self, "temperature", temperature)
-        object.__setattr__(self, "top_k", int(top_k) if top_k else None)
+        object.__setattr__(self, "top_k", top_k)
         object.__setattr__(self, "top_p", top_p)
         object.__setattr__(self, "guidance", guidance)
 

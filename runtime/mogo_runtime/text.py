@@ -18,6 +18,13 @@ from pathlib import Path
 import numpy as np
 from tokenizers import Tokenizer
 
+from .sampling import as_int
+
+# The encoder reads a prompt's first max_length tokens (a few hundred words) and drops the rest, but the tokenizer
+# and the aligner work on all of it first: a 10 MB prompt took 36 s and 5 GB before being cut (CJK text, one token
+# a character). 10,000 characters is many times what any bundle reads.
+MAX_PROMPT_CHARS = 10_000
+MAX_THREADS = 64   # onnxruntime segfaults or hangs on absurd thread counts; no CPU this runs on has more cores
 
 
 @dataclass(frozen=True)
@@ -53,19 +60,35 @@ def configure_tokenizer(tok: Tokenizer, settings: TokenizerSettings) -> Tokenize
 
 
 def check_texts(texts: list[str]) -> list[str]:
-    """Reject what would silently embed to nonsense: a bare string, an empty list, blank prompts."""
+    """Reject what would silently embed to nonsense or cost without bound: a bare string, an empty list, blank
+    prompts, prompts over MAX_PROMPT_CHARS characters, and strings that are not Unicode text (lone surrogates,
+    which is what Python makes of command-line bytes that are not UTF-8)."""
     if isinstance(texts, str):
-        raise TypeError("encode() takes a list of prompts, got a single str; wrap it: encode([text])")
+        raise ValueError("encode() takes a list of prompts, got a single str; wrap it: encode([text])")
     texts = list(texts)
     if not texts:
         raise ValueError("encode() got an empty list of prompts")
     for i, t in enumerate(texts):
         if not isinstance(t, str):
-            raise TypeError(f"prompt {i} is a {type(t).__name__}, expected str")
+            raise ValueError(f"prompt {i} is a {type(t).__name__}, expected str")
+        if len(t) > MAX_PROMPT_CHARS:
+            raise ValueError(f"prompt {i} has {len(t):,} characters; a prompt may have at most {MAX_PROMPT_CHARS:,} "
+                             f"(the text encoder reads only its first few hundred words)")
         if not t.strip():
             raise ValueError(f"prompt {i} is empty or whitespace only ({t!r}); describe a motion, "
                              f"e.g. 'a person walks forward'")
+        try:
+            t.encode("utf-8")
+        except UnicodeEncodeError as e:
+            raise ValueError(f"prompt {i} is not valid Unicode text: character {e.start} is a lone surrogate "
+                             f"({t[e.start]!r}), as when bytes that are not UTF-8 are read as text; pass UTF-8 "
+                             f"text") from None
     return texts
+
+
+def check_threads(threads: int) -> int:
+    """The onnxruntime thread count, an int in [1, MAX_THREADS]; what every session of the runtime is opened with."""
+    return as_int("threads", threads, f"an int in [1, {MAX_THREADS}]", 1, MAX_THREADS)
 
 
 def tokenize(tok: Tokenizer, texts: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -80,6 +103,7 @@ def session_options(threads: int):
     """Options for sitting inside a host application: few threads, one graph at a time."""
     import onnxruntime as ort
 
+    threads = check_threads(threads)
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = threads
     opts.inter_op_num_threads = 1
@@ -95,19 +119,33 @@ def session_options(threads: int):
 class TextEncoderSession:
     """An exported text encoder (`text_encoder.onnx` + `tokenizer.json`) on onnxruntime, CPU by default."""
 
-    def __init__(self, onnx_path: str | Path, tokenizer_path: str | Path, threads: int = 1,
-                 providers: list[str] | None = None):
+    def __init__(self, onnx_path: str | Path | bytes, tokenizer_path: str | Path | bytes, threads: int = 1,
+                 providers: list[str] | None = None, names: tuple[str, str] | None = None):
+        """The graph and the tokenizer as paths, or as their bytes (what a bundle checked: `names` then says which
+        files they are, for messages). Whatever the tokenizers library or onnxruntime cannot read is a ValueError
+        naming the file."""
         import onnxruntime as ort  # imported here so `tokenize` works without onnxruntime
 
-        self.tokenizer = Tokenizer.from_file(str(tokenizer_path))
-        self.settings = TokenizerSettings.from_tokenizer(self.tokenizer, source=str(tokenizer_path))
+        onnx_name, tokenizer_name = names or (str(onnx_path), str(tokenizer_path))
+        try:
+            if isinstance(tokenizer_path, bytes):
+                self.tokenizer = Tokenizer.from_str(tokenizer_path.decode("utf-8"))
+            else:
+                self.tokenizer = Tokenizer.from_file(str(tokenizer_path))
+        except Exception as e:   # noqa: BLE001 - the library raises a bare Exception for a file it cannot parse
+            raise ValueError(f"{tokenizer_name}: not a tokenizer the tokenizers library can read ({e})") from None
+        self.settings = TokenizerSettings.from_tokenizer(self.tokenizer, source=tokenizer_name)
+        options = session_options(threads)
+        try:
+            self.session = ort.InferenceSession(onnx_path if isinstance(onnx_path, bytes) else str(onnx_path),
+                                                options, providers=providers or ["CPUExecutionProvider"])
+        except Exception as e:   # noqa: BLE001 - onnxruntime raises its own types for a file it cannot parse
+            raise ValueError(f"{onnx_name}: onnxruntime cannot load it ({e})") from None
+        onnx_path, tokenizer_path = onnx_name, tokenizer_name
 
-        self.session = ort.InferenceSession(str(onnx_path), session_options(threads),
-                                            providers=providers or ["CPUExecutionProvider"])
-
-        names = {i.name for i in self.session.get_inputs()}
-        if names != {"input_ids", "attention_mask"}:
-            raise ValueError(f"{onnx_path}: expected inputs input_ids, attention_mask; found {sorted(names)}")
+        inputs = {i.name for i in self.session.get_inputs()}
+        if inputs != {"input_ids", "attention_mask"}:
+            raise ValueError(f"{onnx_path}: expected inputs input_ids, attention_mask; found {sorted(inputs)}")
         self.output_name = self.session.get_outputs()[0].name
         meta = self.session.get_modelmeta().custom_metadata_map
         for key in ("dim", "max_length", "encoder"):

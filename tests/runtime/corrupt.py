@@ -285,6 +285,8 @@ class _OutsideReads:
 
     def _hook(self, event, args):
         if event == "open" and self.allowed and isinstance(args[0], (str, bytes, os.PathLike)):
+            if os.fsdecode(args[0]) == ".":     # files.py's O_TMPFILE open, relative to a folder fd the hook cannot see
+                return
             path = os.path.realpath(os.fsdecode(args[0]))
             if not any(path == a or path.startswith(a + os.sep) for a in self.allowed):
                 self.seen.append(path)
@@ -294,7 +296,7 @@ _AUDIT: _OutsideReads | None = None
 
 
 def outcome(folder: Path, allowed: list[Path]) -> tuple[str, str]:
-    """Load the bundle at `folder`, generate 1 s from it; -> (outcome, detail). `allowed`: folders whose files
+    """Load the bundle at `folder`, generate 1 s from each of its variants; -> (outcome, detail). `allowed`: folders whose files
     may be read (the bundle, Python's own, the installed packages)."""
     global _AUDIT
     if _AUDIT is None:
@@ -302,9 +304,11 @@ def outcome(folder: Path, allowed: list[Path]) -> tuple[str, str]:
     _AUDIT.allowed = [os.path.realpath(a) for a in allowed]
     _AUDIT.seen = []
     try:
-        Bundle.load(folder)
-        motion = MotionGenerator(folder).generate("a person walks forward", seconds=1, seed=0)
-        result = ("ok", "") if np.isfinite(motion.joints).all() else ("nonfinite", "NaN or inf joints returned")
+        result = ("ok", "")
+        for variant in Bundle.load(folder).variants:
+            motion = MotionGenerator(folder, variant=variant).generate("a person walks forward", seconds=1, seed=0)
+            if not np.isfinite(motion.joints).all():
+                result = ("nonfinite", f"NaN or inf joints returned ({variant})")
     except (BundleError, ValueError) as e:
         text = str(e)
         named = folder.name in text or "manifest" in text or "field" in text
@@ -325,8 +329,11 @@ def allowed_folders(bundle_copy: Path) -> list[Path]:
     facts there), /dev."""
     import numpy
     import onnxruntime
+
+    import mogo_runtime
     roots = {bundle_copy, Path(sys.prefix), Path(sys.base_prefix), Path(numpy.__file__).parents[1],
-             Path(onnxruntime.__file__).parents[1], Path("/proc"), Path("/sys"), Path("/dev"), Path("/etc/localtime")}
+             Path(onnxruntime.__file__).parents[1], Path(mogo_runtime.__file__).parent,   # imports on first use
+             Path("/proc"), Path("/sys"), Path("/dev"), Path("/etc/localtime")}
     return sorted(roots)
 
 

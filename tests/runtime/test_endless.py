@@ -137,7 +137,7 @@ def test_set_prompt_takes_effect_at_the_next_token(gen):
     fb = list(itertools.islice(b, 40))
     k = b.tokens
     b.set_prompt(JUMP)
-    assert b.text == JUMP and b.switches == [(k, JUMP, None)]
+    assert b.text == JUMP and list(b.switches) == [(k, JUMP, None)]
     fa += list(itertools.islice(a, 60))
     fb += list(itertools.islice(b, 60))
     ja, jb = np.stack([f.joints for f in fa]), np.stack([f.joints for f in fb])

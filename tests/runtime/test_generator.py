@@ -211,7 +211,7 @@ def test_the_model_ends_a_motion_while_its_batchmates_go_on(toy_gen):
     ("   \t", ValueError, "empty or whitespace"),
     (["walks", " "], ValueError, "prompt 1 is empty"),
     ([], ValueError, "empty list"),
-    (["walks", 3], TypeError, "prompt 1 is a int"),
+    (["walks", 3], ValueError, "prompt 1 is a int"),
 ])
 def test_bad_text(toy_gen, text, error, match):
     with pytest.raises(error, match=match):
@@ -267,5 +267,5 @@ def test_bad_threads_and_stream_takes_one_prompt(toy_bundle, toy_gen):  # noqa: 
             MotionGenerator(toy_bundle, threads=threads)
     with pytest.raises(ValueError, match="variant must be a variant name"):
         MotionGenerator(toy_bundle, variant="")
-    with pytest.raises(TypeError, match="use generate"):
+    with pytest.raises(ValueError, match="use generate"):
         toy_gen.stream(PROMPTS[:2])

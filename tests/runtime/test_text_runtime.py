@@ -72,9 +72,9 @@ def test_session_rejects_bad_prompts(bundle):
         sess.encode(["a person walks", "   \t"])
     with pytest.raises(ValueError, match="prompt 0 is empty"):
         sess.encode([""])
-    with pytest.raises(TypeError, match="single str"):
+    with pytest.raises(ValueError, match="single str"):
         sess.encode("a person walks")
-    with pytest.raises(TypeError, match="prompt 0 is a int"):
+    with pytest.raises(ValueError, match="prompt 0 is a int"):
         sess.encode([3])
 
 

@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..text import check_texts
 from .base import AlignedPrompt, Aligner
 from .index import CaptionIndex, load_bundle_index
 from .lexicon import DIRECTIONS, OPPOSITES
@@ -26,9 +27,16 @@ from .wording import WordingNormalizer, caption_verbs, sentence, strip_subject
 DEFAULTS = {"lexical_weight": 0.05, "split_margin": 0.02}
 CANDIDATES = 32   # nearest captions re-ranked by direction words
 NEIGHBOURS = 3    # of them, kept per clause in `details["neighbours"]`
-# Bare "and"s of one clause tried as split points (the first ones). Each try embeds the clause's two parts, so
-# trying all of them made a long run-on prompt quadratic: 36.7 s for 3,000 characters (docs/tca.md).
+# Bare "and"s tried as split points, per prompt (the first ones). Each try embeds a clause and its two parts, so
+# trying all of them made a long run-on prompt quadratic: 36.7 s for 3,000 characters (docs/tca.md); 8 per clause
+# still let four run-on clauses of MAX_CLAUSE_CHARS take 3 s.
 MAX_SPLITS = 8
+# Clauses aligned per prompt, and characters per clause; past them a prompt is cut, with a warning. Training
+# captions name one to four actions in a few dozen words, and the encoder reads only the first few hundred tokens,
+# so more would barely reach the model while every clause costs encoder rows. The bounds also keep the aligned text
+# (clauses, or captions of at most index.MAX_TEXT characters, joined) under text.MAX_PROMPT_CHARS.
+MAX_CLAUSES = 8
+MAX_CLAUSE_CHARS = 500
 
 
 def _encoder(session) -> Callable[[list[str]], np.ndarray]:
@@ -38,6 +46,14 @@ def _encoder(session) -> Callable[[list[str]], np.ndarray]:
         raise TypeError(f"text_session must have .encode(list[str]) or .encode_text(list[str]); got "
                         f"{type(session).__name__}")
     return lambda texts: np.asarray(fn(list(texts)), np.float32)
+
+
+def _cut(text: str, most: int) -> str:
+    """`text` cut to at most `most` characters, after its last whole word where it has one there."""
+    if len(text) <= most:
+        return text
+    head = text[:most + 1].rsplit(" ", 1)[0]      # the character past the cut tells if the last word is whole
+    return head[:most]
 
 
 def _query_directions(clause: str) -> set[str]:
@@ -92,7 +108,11 @@ class OfflineAligner(Aligner):
         return self.index is not None
 
     def align(self, text: str) -> AlignedPrompt:
-        clauses = self.normalizer.normalize(text)
+        """`text` in the captions' style; ValueError for a prompt `check_texts` refuses (over MAX_PROMPT_CHARS
+        characters, blank, not Unicode text), so the work stays bounded. Clauses past MAX_CLAUSES, and characters of
+        a clause past MAX_CLAUSE_CHARS, are dropped with a warning."""
+        check_texts([text])
+        clauses = self._bounded(self.normalizer.normalize(text))
         if not clauses:   # nothing recognisable: condition on the prompt as given
             return AlignedPrompt(text, method="none", details={"reason": "no motion words found", "clauses": []})
         if self.index is None:
@@ -110,6 +130,20 @@ class OfflineAligner(Aligner):
                    "neighbours": [[(self.index.captions[i], round(float(s), 4)) for i, s in h] for h in hits]}
         return AlignedPrompt(sentence([strip_subject(self.index.captions[h[0][0]]) for h in hits]),
                              method="nearest", details=details)
+
+    @staticmethod
+    def _bounded(clauses: list[str]) -> list[str]:
+        cut = []
+        if len(clauses) > MAX_CLAUSES:
+            cut.append(f"it names {len(clauses)} actions, the first {MAX_CLAUSES} are followed (a timeline, "
+                       f"[(prompt, start_seconds), ...], chains more)")
+            clauses = clauses[:MAX_CLAUSES]
+        if any(len(c) > MAX_CLAUSE_CHARS for c in clauses):
+            cut.append(f"an action described in more than {MAX_CLAUSE_CHARS} characters is cut there")
+            clauses = [_cut(c, MAX_CLAUSE_CHARS) for c in clauses]
+        if cut:
+            warnings.warn(f"align: the prompt is cut: {'; '.join(cut)}", stacklevel=3)   # the caller of align()
+        return clauses
 
     # ---- retrieval
     def _scores(self, phrases: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -148,10 +182,13 @@ class OfflineAligner(Aligner):
     def _refine_split(self, clauses: list[str]) -> list[str]:
         """Split a clause at a bare "and" when its parts each match the captions better than the whole does."""
         out: list[str] = []
-        for c in clauses:
+        tries = MAX_SPLITS
+        for k, c in enumerate(clauses):
             words = c.split()
+            room = MAX_CLAUSES - len(out) - (len(clauses) - k)     # a split must not push the count past the bound
             cuts = [i for i, w in enumerate(words) if w == "and" and 0 < i < len(words) - 1
-                    and self.normalizer.is_verb(words[i + 1])][:MAX_SPLITS]
+                    and self.normalizer.is_verb(words[i + 1])][:tries if room > 0 else 0]
+            tries -= len(cuts)
             best_parts, best = [c], None
             for cut in cuts:
                 parts = [" ".join(words[:cut]), " ".join(words[cut + 1:])]
