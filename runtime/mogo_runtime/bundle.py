@@ -95,9 +95,6 @@ class Bundle:
         are the bytes checked); an ONNX graph must also be self-contained (no external data)."""
         size, digest = self.manifest.files[name]
         fpath = self._listed_path(name)
-        if name.endswith(".onnx") and size > GRAPH_MAX_BYTES:
-            raise BundleError(f"{fpath}: {size} bytes; an ONNX graph without external data is at most "
-                              f"{GRAPH_MAX_BYTES} bytes")
         with open(fpath, "rb") as f:
             data = f.read(size + 1)
         if len(data) != size or hashlib.sha256(data).hexdigest() != digest:
@@ -124,6 +121,9 @@ class Bundle:
             raise BundleError(f"{fpath}: not directly inside the bundle folder {self.path}")
         if fpath.stat().st_size != size:
             raise BundleError(f"{fpath}: size {fpath.stat().st_size} bytes, manifest says {size}")
+        if name.endswith(".onnx") and size > GRAPH_MAX_BYTES:   # refused before a byte is read or hashed
+            raise BundleError(f"{fpath}: {size} bytes; an ONNX graph without external data is at most "
+                              f"{GRAPH_MAX_BYTES} bytes")
         return fpath
 
     def graph_file(self, graph: str, variant: str = "fp32") -> Path:
