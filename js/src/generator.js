@@ -17,14 +17,28 @@ import { GenerationTask } from './task.js';
 
 export const MAX_SECONDS = 3600;   // the longest fixed length on an endless bundle: the whole motion is kept
 
-/** Reject what would silently embed to nonsense: an empty list, non-strings, blank prompts (text.check_texts). */
+export const MAX_PROMPT_CHARS = 10_000;   // characters (code points), as the Python runtime's text.MAX_PROMPT_CHARS
+
+/**
+ * Reject what would silently embed to nonsense or cost without bound (text.check_texts): an empty list,
+ * non-strings, prompts over MAX_PROMPT_CHARS characters, blank prompts, lone surrogates (not Unicode text).
+ */
 export function checkTexts(texts) {
   if (!Array.isArray(texts)) throw new TypeError('expected a list of prompts');
   if (!texts.length) throw new RangeError('got an empty list of prompts');
   texts.forEach((t, i) => {
     if (typeof t !== 'string') throw new TypeError(`prompt ${i} is a ${t === null ? 'null' : typeof t}, expected a string`);
+    const chars = t.length > MAX_PROMPT_CHARS ? [...t].length : t.length;   // UTF-16 units >= code points
+    if (chars > MAX_PROMPT_CHARS) {
+      throw new RangeError(`prompt ${i} has ${chars.toLocaleString('en-US')} characters; a prompt may have at most `
+        + `${MAX_PROMPT_CHARS.toLocaleString('en-US')} (the text encoder reads only its first few hundred words)`);
+    }
     if (!t.trim()) {
       throw new RangeError(`prompt ${i} is empty or whitespace only (${JSON.stringify(t)}); describe a motion, e.g. 'a person walks forward'`);
+    }
+    if (!t.isWellFormed()) {
+      const at = [...t].findIndex((c) => c.length === 1 && c >= '\ud800' && c <= '\udfff');
+      throw new RangeError(`prompt ${i} is not valid Unicode text: character ${at} is a lone surrogate; pass UTF-8 text`);
     }
   });
   return texts;
