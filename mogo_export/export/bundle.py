@@ -29,7 +29,7 @@ import torch
 from onnxruntime.quantization import QuantType, quantize_dynamic
 
 from mogo_runtime.bundle import sha256_file
-from mogo_runtime.files import write_atomic
+from mogo_runtime.files import process_alive, write_atomic
 from mogo_runtime.manifest import (ORT_SUFFIX, PORTABLE, PORTABLE_OPSET, SCHEMA, SCHEMA_VERSION, GraphFile, GraphSpec,
                                    Manifest, Normalization, OrtFormat, PortableSpec, StreamingSpec, TensorSpec,
                                    TextEncoderSpec, required_capacity)
@@ -98,6 +98,18 @@ def _write_ort(folder: Path, variants: dict, names: tuple[str, ...], log) -> Ort
                      onnxruntime=onnxruntime.__version__)
 
 
+def remove_dead_partials(out: Path) -> list[Path]:
+    """Remove the `.NAME.partial-PID` folders beside bundle `out` whose exporter is gone (killed mid-way):
+    a live exporter's folder is kept. Returns what was removed."""
+    removed = []
+    for stale in sorted(out.parent.glob(f".{out.name}.partial-*")):
+        pid = stale.name.rsplit("-", 1)[1]
+        if pid.isdigit() and not process_alive(int(pid)):
+            shutil.rmtree(stale, ignore_errors=True)
+            removed.append(stale)
+    return removed
+
+
 def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OPSET,
                   int8: tuple[str, ...] = INT8_GRAPHS, portable: bool = True, ort: tuple[str, ...] = ORT_VARIANTS,
                   data: str | Path | None = None, log=print) -> Path:
@@ -123,6 +135,7 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
                          f"expects {dims.text_dim}")
 
     out.parent.mkdir(parents=True, exist_ok=True)
+    remove_dead_partials(out)
     tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()

@@ -153,12 +153,13 @@ def stale_temps(folder: str | Path) -> list[Path]:
             if m is None or (m["ext"] or "") != Path(m["name"]).suffix:
                 continue
         pid = int(m["pid"])
-        if pid > 0 and not _alive(pid):
+        if pid > 0 and not process_alive(pid):
             out.append(Path(folder) / name)
     return sorted(out)
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process `pid` (of this pid namespace) may still write: alive and not a zombie."""
     if pid == os.getpid():
         return True
     try:

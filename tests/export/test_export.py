@@ -1,5 +1,6 @@
 """Export: each ONNX graph computes what its torch module computes, and the bundle describes itself."""
 import json
+import os
 import shutil
 
 import numpy as np
@@ -133,3 +134,19 @@ def test_export_is_atomic_when_it_fails(tiny, tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="disk full"):
         export_bundle(tiny["root"] / "ck", tmp_path / "bundle", log=lambda *a: None)
     assert list(tmp_path.iterdir()) == []  # no half bundle, no leftover temp folder
+
+
+def test_an_export_killed_mid_way_leaves_nothing_the_next_export_keeps(tmp_path):
+    """kill -9 during `mogo-export export` strands its `.NAME.partial-PID` folder; the next export removes the
+    folders of dead exporters and keeps a live one's."""
+    import subprocess
+    from mogo_export.export.bundle import remove_dead_partials
+    out = tmp_path / "bundle"
+    dead = subprocess.Popen(["true"])
+    dead.wait()                                        # a pid that no longer runs
+    live = tmp_path / f".bundle.partial-{os.getppid()}"
+    for folder in (tmp_path / f".bundle.partial-{dead.pid}", live, tmp_path / ".other.partial-1"):
+        folder.mkdir()
+        (folder / "step.onnx").write_bytes(b"half")
+    assert remove_dead_partials(out) == [tmp_path / f".bundle.partial-{dead.pid}"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, ".other.partial-1"])
