@@ -51,8 +51,10 @@ class Bundle:
 
     @classmethod
     def load(cls, path: str | Path, verify_hashes: bool = True, check_graphs: bool = True,
-             variants: list[str] | None = None) -> "Bundle":
+             variants: list[str] | None = None, hash_graphs_on_open: bool = False) -> "Bundle":
         """`variants`: check only the files these variants use (plus every non-graph file); None = all.
+        `hash_graphs_on_open`: for a caller that opens the graphs right away (`session` hashes the bytes it hands
+        onnxruntime), the graph files' hashes are not also checked here: every graph byte is hashed once.
 
         A generator that runs int8 then never reads (or hashes) the 90 MB fp32 text encoder: cold start drops
         from ~1.9 s to ~0.7 s on a base bundle (benchmarks/NOTES.md)."""
@@ -77,7 +79,7 @@ class Bundle:
         graph_files = {e.file for gs in bundle.manifest.variants.values() for e in gs.values()}
         for name in bundle.manifest.files:
             if name in used or name not in graph_files:
-                bundle.check_file(name, verify_hashes)
+                bundle.check_file(name, verify_hashes and not (hash_graphs_on_open and name in used))
         if check_graphs:
             bundle.check_graph_signatures(variants)
         return bundle

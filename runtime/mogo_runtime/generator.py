@@ -103,7 +103,7 @@ class MotionGenerator:
             raise ValueError(f"variant must be a variant name such as 'fp32', 'int8' or 'portable', got {variant!r}")
         check_threads(threads)     # before the bundle is read and hashed
         self.bundle = (bundle if isinstance(bundle, Bundle) else
-                       Bundle.load(bundle, variants=[variant], check_graphs=False))
+                       Bundle.load(bundle, variants=[variant], check_graphs=False, hash_graphs_on_open=True))
         self.backend = open_backend(self.bundle, variant, threads)
         self.variant, self.dims, self.skeleton = variant, self.bundle.dims, self.bundle.skeleton
         self.max_tokens, self.max_seconds = self.dims.max_tokens, self.dims.max_seconds
