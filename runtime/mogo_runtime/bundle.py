@@ -99,8 +99,10 @@ class Bundle:
         fpath = self._listed_path(name)
         with open(fpath, "rb") as f:
             data = f.read(size + 1)
-        if len(data) != size or hashlib.sha256(data).hexdigest() != digest:
-            raise BundleError(f"{fpath}: changed since it was checked (size or sha256 no longer the manifest's)")
+        if len(data) != size:                      # the size was checked a moment ago: the file is being changed
+            raise BundleError(f"{fpath}: size {len(data)} bytes when read, manifest says {size}")
+        if hashlib.sha256(data).hexdigest() != digest:
+            raise BundleError(f"{fpath}: sha256 does not match the manifest (file corrupted or replaced)")
         if name.endswith(".onnx"):
             try:
                 outside = external_data(data)

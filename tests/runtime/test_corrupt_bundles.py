@@ -66,7 +66,7 @@ def test_a_graph_replaced_after_loading_is_not_run(toy_bundle, tmp_path):  # noq
     data = bytearray(step.read_bytes())
     data[-1] ^= 1                                             # same size, other bytes
     step.write_bytes(bytes(data))
-    with pytest.raises(BundleError, match="step.onnx: changed since it was checked"):
+    with pytest.raises(BundleError, match="step.onnx: sha256 does not match the manifest"):
         OrtBackend(bundle, "fp32")
 
 
