@@ -13,6 +13,8 @@ How, per frame:
 3. The hips follow the source's pelvis, scaled by the ratio of the two legs (thigh plus shin), so strides fit the
    rig's legs and a foot on the source's floor (y = 0) lands on the rig's floor; with
    `in_place` the horizontal path is dropped (turning stays). A rig with a root-motion bone carries the path on it.
+4. A planted source toe is held on the rig (_plant_feet): the leg swings a little about the hip, and the hips move
+   at most PLANT_MAX_HIPS_M off the scaled path; then the body rises or sinks so the lowest foot is on the floor.
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ from .skeleton import HUMANML3D, Skeleton, check_fps
 HEAD = HUMANML3D.joint_names.index("head")
 CONTACT_HEIGHT = 0.05       # m: a source toe below this is on the ground (mogo_eval's skating measure too)
 PLANT_MAX_DEG = 1.9         # the most a leg is swung to keep a planted foot in place (bone directions stay within it)
+PLANT_MAX_HIPS_M = 0.009    # ... and the most the hips move off the source's path for it (scaled: within 1 cm)
 PLANT_RELEASE_S = 0.25      # time constant of the swing fading out once the foot lifts
 
 
@@ -136,7 +139,7 @@ def retarget(joints, rig: "Rig | str", fps: float = 20.0, in_place: bool = False
         _plant_feet(rig, turn, hips, pos, scale, fps)
     # The lowest foot joint stands as high above the rig's floor as the source's above its own (scaled), so a foot
     # on the floor there is on the floor here: the hips rise or sink by the difference the rig's other proportions
-    # make (a few centimetres at most); the ground path stays exact.
+    # make (a few centimetres at most).
     src_feet = [skeleton.joint_names.index(f) for f in FOOT_SOURCES]
     rig_feet = [rig.bone(f) for f in FOOT_SOURCES]
     hips[:, 1] += rig.floor_height + scale * pos[:, src_feet, 1].min(1) - _forward(rig, turn, hips)[:, rig_feet, 1].min(1)
@@ -165,34 +168,48 @@ def _upright_head(rig: Rig, turn: np.ndarray, head: int) -> np.ndarray:
 
 
 def _plant_feet(rig: Rig, turn: np.ndarray, hips: np.ndarray, pos: np.ndarray, scale: float, fps: float) -> None:
-    """While a source toe is on the ground, swing the rig's leg about its hip (by at most PLANT_MAX_DEG) so the toe
-    moves over the ground as the source's does, scaled: the rig's other proportions (hip width, foot length) would
-    otherwise slide it a few millimetres a frame. Once the foot lifts, the swing fades out (PLANT_RELEASE_S).
-    Changes `turn` in place."""
+    """While a source toe is on the ground, keep the rig's toe moving over the ground as the source's does (scaled):
+    the rig's other proportions (hip width, foot length) would otherwise slide it a few millimetres a frame. Each leg
+    swings about its hip (at most PLANT_MAX_DEG) and what that cannot reach moves the hips (at most PLANT_MAX_HIPS_M
+    off the scaled path). Once a foot lifts, its swing fades out, and so does the hips' move when no foot is planted
+    (PLANT_RELEASE_S). Changes `turn` and `hips` in place."""
     positions = _forward(rig, turn, hips)
     release = float(np.exp(-1.0 / (fps * PLANT_RELEASE_S)))
     limit = np.radians(PLANT_MAX_DEG)
-    for side in ("left", "right"):
-        hip, toe = rig.bone(f"{side}_hip"), rig.bone(f"{side}_foot")
-        src_toe = pos[:, HUMANML3D.joint_names.index(f"{side}_foot")]
-        swing = np.zeros((len(pos), 3))                                             # rotation vectors
-        current, anchor, src_anchor = np.zeros(3), None, None
-        for t in range(len(pos)):
-            h, v = positions[t, hip], positions[t, toe] - positions[t, hip]
-            current = current * release
+    legs = [(rig.bone(f"{side}_hip"), rig.bone(f"{side}_foot"), pos[:, HUMANML3D.joint_names.index(f"{side}_foot")])
+            for side in ("left", "right")]
+    swing = np.zeros((len(legs), len(pos), 3))                   # rotation vectors, per leg and frame
+    shift = np.zeros((len(pos), 3))                              # the hips' move off the scaled path
+    current, moved = np.zeros((len(legs), 3)), np.zeros(3)
+    anchors: list = [None] * len(legs)
+    for t in range(len(pos)):
+        current *= release
+        moved *= release
+        residual = []
+        for i, (hip, toe, src_toe) in enumerate(legs):
+            h, v = positions[t, hip] + moved, positions[t, toe] - positions[t, hip]
             if src_toe[t, 1] < CONTACT_HEIGHT:
-                if anchor is None:
-                    anchor, src_anchor = h + _rotvec(current[None])[0] @ v, src_toe[t]
-                goal = anchor + scale * (src_toe[t] - src_anchor)
+                if anchors[i] is None:
+                    anchors[i] = (h + _rotvec(current[i][None])[0] @ v, src_toe[t])
+                goal = anchors[i][0] + scale * (src_toe[t] - anchors[i][1])
                 goal[1] = h[1] + v[1]
-                current = _rotvec_between(v, goal - h, limit)
+                current[i] = _rotvec_between(v, goal - h, limit)
+                residual.append((goal - h - _rotvec(current[i][None])[0] @ v) * [1.0, 0.0, 1.0])
             else:
-                anchor = None
-            swing[t] = current
-        rot = _rotvec(swing)
+                anchors[i] = None
+            swing[i, t] = current[i]
+        if residual:
+            moved = moved + np.mean(residual, axis=0)
+            norm = np.linalg.norm(moved)
+            if norm > PLANT_MAX_HIPS_M * scale:          # the bound is on the path scaled back to the source's
+                moved *= PLANT_MAX_HIPS_M * scale / norm
+        shift[t] = moved
+    for (hip, _, _), rotvecs in zip(legs, swing):
+        rot = _rotvec(rotvecs)
         for b in range(rig.num_bones):
             if _is_below(rig.parents, hip, b):
                 turn[:, b] = rot @ turn[:, b]
+    hips += shift
 
 
 def _rotvec_between(a: np.ndarray, b: np.ndarray, limit: float) -> np.ndarray:

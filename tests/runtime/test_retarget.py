@@ -12,7 +12,7 @@ import pytest
 from mogo_runtime import Motion
 from mogo_runtime.gltf import glb_bytes
 from mogo_runtime.quaternion import quaternion_to_matrix
-from mogo_runtime.retarget import CONTACT_HEIGHT, PLANT_MAX_DEG, retarget
+from mogo_runtime.retarget import CONTACT_HEIGHT, PLANT_MAX_DEG, PLANT_MAX_HIPS_M, retarget
 from mogo_runtime.rig import RIGS, RigError, load_rig, rig_from_dict
 from mogo_runtime.skeleton import HUMANML3D
 
@@ -136,7 +136,7 @@ def test_bones_follow_the_source_and_the_root_path_is_scaled(clip, rig):
     root_err = np.abs(path - clip[:, 0, [0, 2]]).max()
     print(f"{rig}: scale {anim.scale:.3f}, worst bone direction {err.max():.3f} deg, ground path {root_err * 100:.2e} cm")
     assert err.max() < min(DIRECTION_TOL_DEG, PLANT_MAX_DEG + 0.1)
-    assert root_err < 1e-9
+    assert root_err <= PLANT_MAX_HIPS_M + 1e-9 < ROOT_TOL_M       # planted feet may move the hips this much
     # limb lengths are the rig's, on every frame (the hips move freely under a root-motion bone)
     for b, p in enumerate(anim.rig.parents):
         if p >= 0 and b != anim.rig.hips:
@@ -154,7 +154,7 @@ def test_feet_stay_on_the_floor_and_slide_no_more_than_the_source(clip, rig):
     src_toes, rig_toes = clip[:, [10, 11]], anim.positions[:, [r.bone("left_foot"), r.bone("right_foot")]]
     src, rig_ = skating_frames(src_toes, src_toes, 1.0), skating_frames(rig_toes, src_toes, k)
     print(f"{rig}: frames where a planted toe slides: source {src}, rig {rig_} (of {len(clip) - 1})")
-    assert rig_ <= src + max(2, 0.02 * src)      # counted in whole frames at a threshold: see tests/tools
+    assert rig_ <= src
 
 
 def skating_frames(toes, source_toes, scale) -> int:
