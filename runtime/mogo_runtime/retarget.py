@@ -25,7 +25,7 @@ import numpy as np
 from .bvh import rotations_to_bvh_text
 from .ik import axis_angle, kabsch, local_rotations, min_rotation, rest_offsets
 from .rig import FOOT_SOURCES, Rig, load_rig
-from .skeleton import HUMANML3D, Skeleton, check_fps
+from .skeleton import HUMANML3D, Skeleton, check_fps, is_ancestor
 
 HEAD = HUMANML3D.joint_names.index("head")
 CONTACT_HEIGHT = 0.05       # m: a source toe below this is on the ground (mogo_eval's skating measure too)
@@ -78,7 +78,7 @@ class RigMotion:
         are its turn from the rest pose, in its parent's turned axes). BVH moves only its root, so the hips are the
         root and bones above them (a root-motion bone) are left out."""
         rig = self.rig
-        keep = [b for b in rig.order if _is_below(rig.parents, rig.hips, b)]
+        keep = [b for b in rig.order if is_ancestor(rig.parents, rig.hips, b)]
         index = {b: i for i, b in enumerate(keep)}
         parents = [index.get(rig.parents[b], -1) for b in keep]
         delta = self.world_rotations[:, keep] @ np.swapaxes(rig.rest_rotations[keep], -1, -2)[None]  # turn from rest
@@ -207,7 +207,7 @@ def _plant_feet(rig: Rig, turn: np.ndarray, hips: np.ndarray, pos: np.ndarray, s
     for (hip, _, _), rotvecs in zip(legs, swing):
         rot = _rotvec(rotvecs)
         for b in range(rig.num_bones):
-            if _is_below(rig.parents, hip, b):
+            if is_ancestor(rig.parents, hip, b):
                 turn[:, b] = rot @ turn[:, b]
     hips += shift
 
@@ -226,15 +226,6 @@ def _rotvec(v: np.ndarray) -> np.ndarray:
     angle = np.linalg.norm(v, axis=-1)
     axis = np.where(angle[:, None] > 1e-12, v / np.maximum(angle, 1e-300)[:, None], [1.0, 0.0, 0.0])
     return axis_angle(axis, angle)
-
-
-def _is_below(parents, a: int, b: int) -> bool:
-    """b is a or under it."""
-    while b >= 0:
-        if b == a:
-            return True
-        b = parents[b]
-    return False
 
 
 def _forward(rig: Rig, turn: np.ndarray, hips: np.ndarray) -> np.ndarray:

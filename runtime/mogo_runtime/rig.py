@@ -22,7 +22,7 @@ import numpy as np
 
 from .ik import min_rotation
 from .jsonfields import Fields, kind
-from .skeleton import HUMANML3D, children_of, depth_first
+from .skeleton import HUMANML3D, children_of, depth_first, is_ancestor
 
 RIG_FORMAT = "mogo-rig/1"
 RIGS_DIR = Path(__file__).parent / "rigs"
@@ -220,7 +220,7 @@ def rig_from_dict(data, where: str = "rig") -> Rig:
         if root_motion not in names:
             f.fail("root_motion_bone", f"{root_motion!r} is not a bone of this rig")
         r = names.index(root_motion)
-        if not _is_ancestor(rig.parents, r, rig.hips):
+        if not is_ancestor(rig.parents, r, rig.hips):
             f.fail("root_motion_bone", f"{root_motion!r} must be above the hips bone "
                                        f"{names[rig.hips]!r} in the hierarchy")
         rig = replace(rig, root_motion_bone=r)
@@ -242,22 +242,13 @@ def _check_tree(rig: Rig, f: Fields) -> None:
         if a < 0 and s != HUMANML3D.root:
             f.fail(f"bones[{b}].source", f"bone {rig.bone_names[b]!r} follows {HUMANML3D.joint_names[s]!r} but no bone "
                                          f"above it follows a joint (only the hips bone may)")
-        if a >= 0 and not _is_ancestor(src_parents, rig.sources[a], s):
+        if a >= 0 and not is_ancestor(src_parents, rig.sources[a], s):
             f.fail(f"bones[{b}].source", f"bone {rig.bone_names[b]!r} follows {HUMANML3D.joint_names[s]!r}, which is "
                                          f"not below {HUMANML3D.joint_names[rig.sources[a]]!r} (followed by "
                                          f"{rig.bone_names[a]!r}, the bone above it)")
         if a >= 0 and np.linalg.norm(rig.heads[b] - rig.heads[a]) < 1e-4:
             f.fail(f"bones[{b}].head", f"bone {rig.bone_names[b]!r} sits on {rig.bone_names[a]!r}: the bone between "
                                        f"them has no length, so it has no direction to follow")
-
-
-def _is_ancestor(parents, a: int, b: int) -> bool:
-    """a is b or above it."""
-    while b >= 0:
-        if b == a:
-            return True
-        b = parents[b]
-    return False
 
 
 def _has(rig: Rig, source: str) -> bool:

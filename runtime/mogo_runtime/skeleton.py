@@ -87,6 +87,15 @@ def depth_first(parents) -> list[int]:
     return order
 
 
+def is_ancestor(parents, a: int, b: int) -> bool:
+    """Joint a is joint b or above it, in a tree given by each joint's parent index (-1 for the root)."""
+    while b >= 0:
+        if b == a:
+            return True
+        b = parents[b]
+    return False
+
+
 def _parents_from_chains(num_joints: int, chains) -> tuple[int, ...]:
     parents = [-1] * num_joints
     for chain in chains:
