@@ -1,10 +1,12 @@
 // HumanML3D features -> joint positions (runtime/mogo_runtime/features.py recover_from_ric, and motion.py
-// RootIntegrator for streams), in float64 with numpy's operation order, returned as float32.
+// RootIntegrator for streams and FootLock for both), in float64 with numpy's operation order, returned as float32.
 //
 // Feature 0 is the change of the root's facing (a half angle about y) to the next frame, features 1-2 the
 // root's xz velocity in the facing frame, feature 3 the root height, features 4.. the joints relative to the
 // root's xz in the facing frame. Frame 0 faces +z at the origin; a frame's heading and position integrate the
 // previous frames' velocities (hence the shift by one frame).
+
+import { featureLayout, toesOf } from './skeleton.js';
 
 /** cross(a, b) for 3-vectors, as numpy computes it. */
 function cross(a0, a1, a2, b0, b1, b2) {
@@ -99,5 +101,52 @@ export class RootIntegrator {
       this.previous = [features[f], features[f + 1], features[f + 2]];
     }
     return joints;
+  }
+}
+
+/**
+ * Keeps a planted toe planted by moving the whole body (x, z) by what the toe slides (motion.py FootLock):
+ * where a toe's contact channel is above 0.5 on the previous frame and this one, the body's running offset
+ * takes away the mean of the held toes' steps, offset_t = offset_{t-1} - mean_k (toe_k[t] - toe_k[t-1])[x, z].
+ * Causal, so a stream and a whole motion get the same joints; float64 inside, float32 in and out.
+ */
+export class FootLock {
+  constructor(numJoints) {
+    this.numJoints = numJoints;
+    this.dim = 12 * numJoints - 1;
+    this.toes = toesOf(numJoints);
+    const start = featureLayout(numJoints).slices.foot_contact[0];
+    this.channels = [start + 1, start + 3];          // left toe, right toe
+    this.x = 0;                                      // the running offset
+    this.z = 0;
+    this.previous = null;                            // the last frame's toe x, z and contact
+  }
+
+  /** joints (n, J, 3) float32 and their features (n, D) -> the locked joints (n, J, 3) float32. */
+  push(joints, features) {
+    const J = this.numJoints, D = this.dim, n = features.length / D;
+    if (!Number.isInteger(n) || joints.length !== n * J * 3) {
+      throw new RangeError(`FootLock.push wants (n, ${J}, 3) joints and (n, ${D}) features, got ${joints.length} and ${features.length} values`);
+    }
+    const out = new Float32Array(joints.length);
+    for (let t = 0; t < n; t++) {
+      const o = t * J * 3;
+      const toe = this.toes.map((j) => [joints[o + j * 3], joints[o + j * 3 + 2]]);
+      const contact = this.channels.map((c) => features[t * D + c] > 0.5);
+      const prev = this.previous ?? { toe, contact: [false, false] };
+      // numpy's order: each step times its 0/1 held flag, left + right, divided by the count held
+      const held = [prev.contact[0] && contact[0], prev.contact[1] && contact[1]].map(Number);
+      const count = held[0] + held[1];
+      const slide = (axis) => ((toe[0][axis] - prev.toe[0][axis]) * held[0] + (toe[1][axis] - prev.toe[1][axis]) * held[1]) / count;
+      this.x += -(count > 0 ? slide(0) : 0);
+      this.z += -(count > 0 ? slide(1) : 0);
+      this.previous = { toe, contact };
+      for (let j = 0; j < J; j++) {
+        out[o + j * 3] = joints[o + j * 3] + this.x;
+        out[o + j * 3 + 1] = joints[o + j * 3 + 1];
+        out[o + j * 3 + 2] = joints[o + j * 3 + 2] + this.z;
+      }
+    }
+    return out;
   }
 }

@@ -18,4 +18,4 @@ export { OrtBackend } from './engine.js';
 export { GenerationTask } from './task.js';
 export { EndlessLoop, generateTokens, expandSeeds } from './loop.js';
 export { FrameStreamer, decodeTokens } from './decode.js';
-export { recoverFromRic, RootIntegrator } from './features.js';
+export { FootLock, recoverFromRic, RootIntegrator } from './features.js';

@@ -34,6 +34,18 @@ export const SKELETONS = {
   },
 };
 
+// (left toe, right toe) of each skeleton (skeleton.py foot_left[1], foot_right[1]): the joints the features' toe
+// contact channels describe. Kept apart from SKELETONS, which must equal the manifest's skeleton field for field.
+const TOES = { humanml3d: [10, 11], kit: [20, 15] };
+
+/** The (left toe, right toe) joints of the known skeleton with numJoints joints (skeleton.py toes_of). */
+export function toesOf(numJoints) {
+  for (const [name, skeleton] of Object.entries(SKELETONS)) {
+    if (skeleton.parents.length === numJoints) return TOES[name];
+  }
+  throw new RangeError(`no known skeleton has ${numJoints} joints`);
+}
+
 /**
  * Where each field sits in a frame's feature vector, for J joints (D = 12J - 1), as FeatureLayout.to_dict:
  * root_rot_vel 1, root_lin_vel 2, root_y 1, ric (J-1)*3, rot6d (J-1)*6, local_vel J*3, foot_contact 4.

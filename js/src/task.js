@@ -6,7 +6,7 @@
 // the EndlessLoop: any length, bounded context, END restarts the prompt.
 
 import { decodeTokens, FrameStreamer } from './decode.js';
-import { recoverFromRic, RootIntegrator } from './features.js';
+import { FootLock, recoverFromRic, RootIntegrator } from './features.js';
 import { EndlessLoop, generateTokens, makeRngs } from './loop.js';
 
 export class GenerationTask {
@@ -89,7 +89,10 @@ export class GenerationTask {
 
   async #decoded(tokenSeqs) {
     const features = await decodeTokens(this.backend, tokenSeqs);
-    return tokenSeqs.map((tokens, b) => ({ tokens, features: features[b], joints: recoverFromRic(features[b], this.numJoints) }));
+    return tokenSeqs.map((tokens, b) => ({
+      tokens, features: features[b],
+      joints: new FootLock(this.numJoints).push(recoverFromRic(features[b], this.numJoints), features[b]),
+    }));
   }
 
   /**
@@ -103,13 +106,13 @@ export class GenerationTask {
   }
 
   async* #stream(steps, streamer) {
-    const integrator = new RootIntegrator(this.numJoints);
+    const integrator = new RootIntegrator(this.numJoints), lock = new FootLock(this.numJoints);
     for await (const { picked, alive } of steps) {
       if (!alive[0]) break;
       const { features, frames } = await streamer.push(picked);
-      if (frames) yield { features, joints: integrator.push(features), frames };
+      if (frames) yield { features, joints: lock.push(integrator.push(features), features), frames };
     }
     const { features, frames } = await streamer.flush();
-    if (frames) yield { features, joints: integrator.push(features), frames };
+    if (frames) yield { features, joints: lock.push(integrator.push(features), features), frames };
   }
 }

@@ -26,6 +26,7 @@ from tokenizers import Tokenizer
 
 from mogo_runtime import MotionGenerator, SamplingConfig
 from mogo_runtime.decoding import GenerationTask, make_rngs
+from mogo_runtime.motion import FootLock
 from mogo_runtime.sampling import sample
 from mogo_runtime.text import TokenizerSettings, configure_tokenizer, tokenize
 
@@ -77,6 +78,20 @@ def sampler_cases(rng) -> list[dict]:
             picks = [sample(logits, SamplingConfig(**cfg), rngs).tolist() for _ in range(20)]  # 20 steps
             cases.append({"config": cfg, "shape": [B, L, V], "logits": _floats(logits), "seeds": [str(s) for s in seeds],
                           "picks": picks})
+    return cases
+
+
+def foot_lock_cases(rng) -> list[dict]:
+    """Random joints drifting along x with random toe contacts through motion.FootLock, whole and in chunks of 5."""
+    cases = []
+    for frames in (1, 9, 60):
+        joints = rng.normal(scale=0.3, size=(frames, 22, 3)).astype(np.float32)
+        joints[..., 0] += 0.01 * np.arange(frames, dtype=np.float32)[:, None]
+        feats = rng.normal(size=(frames, 263)).astype(np.float32)
+        feats[:, [260, 262]] = rng.random((frames, 2)) > 0.4
+        lock = FootLock(22)
+        chunked = np.concatenate([lock.push(joints[i:i + 5], feats[i:i + 5]) for i in range(0, frames, 5)])
+        cases.append({"joints": _floats(joints), "features": _floats(feats), "locked": _floats(chunked)})
     return cases
 
 
@@ -174,7 +189,7 @@ def units(out: Path, toy_tokenizer: Path | None) -> dict:
     rng = np.random.default_rng(7)
     tokenizer = tokenizer_cases(out, toy_tokenizer)
     return {"pcg64": pcg64_cases(), "sums": sum_cases(rng), "sampler": sampler_cases(rng), "tokenizer": tokenizer,
-            "code_points": code_point_cases(out)}
+            "code_points": code_point_cases(out), "foot_lock": foot_lock_cases(np.random.default_rng(11))}
 
 
 # ---- bundles: what MotionGenerator gives ---------------------------------------------------------------

@@ -19,7 +19,7 @@ import numpy as np
 
 from .features import recover_from_ric
 from .manifest import ModelDims, StreamingSpec
-from .motion import RootIntegrator
+from .motion import FootLock, RootIntegrator
 from .sampling import SamplingConfig, apply_guidance, sample
 
 
@@ -324,7 +324,7 @@ class GenerationTask:
         return self._decoded(self._collect(steps(), 1, progress))[0]
 
     def _decoded(self, token_seqs: list[np.ndarray]) -> list[Generated]:
-        return [Generated(tok, f, recover_from_ric(f, self.num_joints))
+        return [Generated(tok, f, FootLock(self.num_joints).push(recover_from_ric(f, self.num_joints), f))
                 for tok, f in zip(token_seqs, decode_tokens(self.backend, token_seqs))]
 
     def stream(self, text_emb: np.ndarray, seed: int, chunk: int = 4,
@@ -335,16 +335,16 @@ class GenerationTask:
         return self._stream(self.steps(text_emb, [seed], loop), streamer)
 
     def _stream(self, steps, streamer: FrameStreamer):
-        integrator = RootIntegrator(self.num_joints)
+        integrator, lock = RootIntegrator(self.num_joints), FootLock(self.num_joints)
         for picked, alive in steps:
             if not alive[0]:
                 break
             features = streamer.push(picked)[0]
             if len(features):
-                yield features, integrator.push(features)
+                yield features, lock.push(integrator.push(features), features)
         features = streamer.flush()[0]
         if len(features):
-            yield features, integrator.push(features)
+            yield features, lock.push(integrator.push(features), features)
 
 
 def _report(steps, progress: Callable[[int, int], None], limit: int):

@@ -153,6 +153,15 @@ def check_fps(fps) -> float:
     return value
 
 
+def toes_of(num_joints: int) -> tuple[int, int]:
+    """(left toe, right toe) joints of the known skeleton with num_joints joints: the joints the features'
+    toe contact channels describe."""
+    for s in SKELETONS.values():
+        if s.num_joints == num_joints:
+            return s.foot_left[1], s.foot_right[1]
+    raise ValueError(f"no known skeleton has {num_joints} joints: {sorted((s.num_joints, s.name) for s in SKELETONS.values())}")
+
+
 def get_skeleton(name: str) -> Skeleton:
     try:
         return SKELETONS[name]

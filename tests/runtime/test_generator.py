@@ -13,6 +13,7 @@ from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
 
 from mogo_runtime import Bundle, Frame, Motion, MotionGenerator
 from mogo_runtime.features import recover_from_ric
+from mogo_runtime.motion import FootLock
 from mogo_runtime.engine import OrtBackend, RowByRow
 from mogo_runtime.sampling import GREEDY, SamplingConfig
 
@@ -55,7 +56,8 @@ def test_a_motion_is_consistent(gen):
     assert m.features.shape == (T * ds, gen.dims.feature_dim) and m.features.dtype == np.float32
     assert m.joints.shape == (T * ds, gen.skeleton.num_joints, 3)
     assert np.isfinite(m.joints).all()
-    assert np.array_equal(m.joints, recover_from_ric(m.features, gen.skeleton.num_joints))
+    assert np.array_equal(m.joints, FootLock(gen.skeleton.num_joints).push(
+        recover_from_ric(m.features, gen.skeleton.num_joints), m.features))
     assert m.fps == gen.dims.fps and m.seconds == pytest.approx(T * ds / gen.dims.fps)
     assert (m.text, m.seed, m.skeleton) == (PROMPTS[0], 3, gen.skeleton)
 

@@ -1,4 +1,5 @@
-"""Motion files read back by independent readers, and the streaming integrator equals recover_from_ric."""
+"""Motion files read back by independent readers, the streaming integrator equals recover_from_ric, and the foot lock
+holds planted toes in any chunking."""
 import json
 import os
 
@@ -8,7 +9,7 @@ import pytest
 from PIL import Image
 
 from mogo_runtime.features import recover_from_ric
-from mogo_runtime.motion import SAVE_FORMATS, Motion, OutputError, RootIntegrator, check_output_path
+from mogo_runtime.motion import SAVE_FORMATS, FootLock, Motion, OutputError, RootIntegrator, check_output_path
 from mogo_runtime.skeleton import HUMANML3D
 
 
@@ -48,6 +49,78 @@ def test_integrator_follows_a_turning_root():
 def test_integrator_rejects_wrong_width():
     with pytest.raises(ValueError, match=r"\(n, 263\)"):
         RootIntegrator(22).push(np.zeros((3, 251)))
+
+
+TOE_CHANNELS = (260, 262)          # left toe, right toe contact channels of the 263 features
+TOES = (10, 11)
+
+
+def sliding_feet(frames=40, seed=0):
+    """Random joints whose body drifts along +x by 1 cm a frame, with random toe contacts."""
+    rng = np.random.default_rng(seed)
+    joints = rng.normal(scale=0.3, size=(frames, 22, 3)).astype(np.float32)
+    joints[..., 0] += 0.01 * np.arange(frames, dtype=np.float32)[:, None]
+    feats = rng.normal(size=(frames, 263)).astype(np.float32)
+    feats[:, list(TOE_CHANNELS)] = rng.random((frames, 2)) > 0.4
+    return joints, feats
+
+
+def test_foot_lock_holds_a_single_planted_toe_still():
+    joints, feats = sliding_feet()
+    feats[:, list(TOE_CHANNELS)] = 0.0
+    feats[10:20, TOE_CHANNELS[0]] = 1.0                  # only the left toe is planted, from frame 10 to 19
+    got = FootLock(22).push(joints, feats)
+    toe = got[10:20, TOES[0]][:, [0, 2]]
+    assert np.abs(toe - toe[0]).max() < 1e-6, "the held toe moved"
+    assert np.abs(np.diff(got[:, TOES[0], [0, 2]], axis=0)).max() > 0.05    # the unheld frames still move
+    assert np.array_equal(got[..., 1], joints[..., 1])  # heights are never touched
+    shift = got[:, :, [0, 2]] - joints[:, :, [0, 2]]    # one rigid xz shift per frame
+    assert np.abs(shift - shift[:, :1]).max() < 1e-6
+    assert np.array_equal(got[:11], joints[:11])         # nothing before the first held step
+
+
+def test_foot_lock_takes_the_mean_slide_of_two_held_toes():
+    joints, feats = sliding_feet()
+    feats[:, list(TOE_CHANNELS)] = 1.0
+    got = FootLock(22).push(joints, feats).astype(np.float64)
+    mean_step = np.diff(got[:, list(TOES)][..., [0, 2]], axis=0).mean(1)    # (T - 1, 2): zero when locked
+    assert np.abs(mean_step).max() < 1e-6
+
+
+def test_foot_lock_without_contact_changes_nothing():
+    joints, feats = sliding_feet()
+    feats[:, list(TOE_CHANNELS)] = 0.0
+    assert np.array_equal(FootLock(22).push(joints, feats), joints)
+
+
+def test_foot_lock_is_the_same_in_any_chunking():
+    joints, feats = sliding_feet(frames=97, seed=1)
+    want = FootLock(22).push(joints, feats)
+    assert not np.array_equal(want, joints)
+    for chunk in (1, 4, 5, 96):
+        lock = FootLock(22)
+        got = np.concatenate([lock.push(joints[i:i + chunk], feats[i:i + chunk]) for i in range(0, 97, chunk)])
+        assert np.array_equal(got, want), chunk
+    assert FootLock(22).push(joints[:0], feats[:0]).shape == (0, 22, 3)
+
+
+def grounded_toe_sliding(joints):
+    """(frames where a toe below 5 cm moves more than 2.5 cm, metres such toes travel) of a (T, 22, 3) motion."""
+    feet = joints[:, list(TOES)].astype(np.float64)
+    grounded = (feet[:-1, :, 1] < 0.05) & (feet[1:, :, 1] < 0.05)
+    step = np.linalg.norm(np.diff(feet[..., [0, 2]], axis=0), axis=-1)
+    return int((grounded & (step > 0.025)).any(-1).sum()), float((grounded * step).sum())
+
+
+def test_foot_lock_on_real_data_slides_less(clip):
+    # HumanML3D marks a foot in contact when it moves under ~4.5 cm a frame, so the lock also takes away slow
+    # slides of a foot about to lift: the body moves a little, and grounded toes slide less than before.
+    got = FootLock(22).push(clip.joints, clip.features)
+    before, after = grounded_toe_sliding(clip.joints), grounded_toe_sliding(got)
+    moved = np.linalg.norm(got[:, 0, [0, 2]] - clip.joints[:, 0, [0, 2]], axis=-1).max()
+    print(f"\nfoot lock on HumanML3D 012314: sliding frames {before[0]} -> {after[0]}, grounded toe travel "
+          f"{before[1]:.2f} -> {after[1]:.2f} m; body shifted at most {moved * 100:.1f} cm over {len(got)} frames")
+    assert after[0] <= before[0] and after[1] < before[1] and moved > 0
 
 
 def test_seconds_and_json_readback(clip, tmp_path):
