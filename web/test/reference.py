@@ -1,7 +1,7 @@
 """What the Python runtime gives, for the web page's browser test (web/test/page.test.mjs); run with the venv's python.
 
     python web/test/reference.py clips --out ref.json toy=/tmp/toy [base=bundles/base ...]
-        tokens of CLIPS (prompt, seed, seconds) on each bundle's fp32 and int8 variants, the bundle defaults' sampling
+        tokens of CLIPS (prompt, seed, seconds) on every variant of each bundle, the bundle defaults' sampling
     python web/test/reference.py timeline BUNDLE VARIANT SEED TOKENS PROMPT SWITCH_TOKEN PROMPT2 < /dev/null
         tokens and joints of a stream that switched prompt at SWITCH_TOKEN (a timeline), as JSON on stdout
     python web/test/reference.py files FPS < joints.json
@@ -33,7 +33,7 @@ def clips(out: Path, bundles: dict[str, str]) -> None:
     for name, path in bundles.items():
         manifest = json.loads((Path(path) / "manifest.json").read_text())
         per_variant = {}
-        for variant in [v for v in ("fp32", "int8") if v in manifest["variants"]]:
+        for variant in manifest["variants"]:
             gen = MotionGenerator(path, variant=variant, threads=1)
             per_variant[variant] = [gen.generate(t, seed=s, seconds=sec).tokens.tolist() for t, s, sec in CLIPS]
         result["bundles"][name] = {"path": str(Path(path).resolve()), "endless": "streaming" in manifest,
