@@ -1,0 +1,261 @@
+"""Many characters, one loop: a crowd steps every character's endless stream with one batched step call per tick.
+
+    gen = MotionGenerator("bundles/base", variant="portable")
+    crowd = Crowd(gen)
+    walker = crowd.add("a person walks forward", seed=1)
+    waver = crowd.add("a person waves", seed=2, seconds=12)        # leaves the crowd after 12 s of motion
+    while crowd:
+        for character, frames in crowd.tick().items():             # each character's new frames, if any
+            send_to_game(character.id, frames.joints)              # (n, J, 3) metres, y up
+        if some_event:
+            walker.set_prompt("a person turns left")                # from this character's next token
+    crowd.remove(walker)
+
+A tick gives every character one more token. Each character runs the endless-stream recipe of
+`decoding.EndlessLoop` (context rebuilds, END restarting the prompt, a prompt switch keeping nothing, one draw per
+level from its own generator) and decodes in the windows of `decoding.FrameStreamer`, so its tokens and frames are
+bit for bit what `gen.stream(prompt, seed=seed)` gives it alone, whoever else is in the crowd
+(tests/runtime/test_crowd.py). That rests on the graphs computing each row on its own, which was checked on
+`base`: a row's logits and decoded features are identical alone and in a batch of 24.
+
+The step graph must be the fixed-capacity one (variant `portable`): each row carries its own `position`, so
+characters at different points of their contexts share one call. A context rebuild (every `refresh` tokens, at END
+and at a prompt switch) feeds its tokens one call each; the characters rebuilding in the same tick share those
+calls, right-aligned so that every character's last token is in the tick's final call.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .decoding import expand_seeds, make_rngs
+from .engine import FixedCacheBackend
+from .motion import FootLock, RootIntegrator
+from .sampling import SamplingConfig, apply_guidance, sample
+from .text import check_texts
+
+if TYPE_CHECKING:
+    from .generator import MotionGenerator
+
+SWITCH_HISTORY = 10_000   # prompt switches kept per character, as FrameStream keeps them
+
+
+@dataclass
+class Frames:
+    """One character's frames from one tick: frame numbers index .. index + n - 1 of its motion."""
+
+    index: int
+    features: np.ndarray     # (n, D) de-normalised
+    joints: np.ndarray       # (n, J, 3) metres, y up
+
+
+class Character:
+    """One member of a crowd: its prompt, generator and the state of its stream. Made by `Crowd.add`."""
+
+    def __init__(self, crowd: "Crowd", ident: int, text: str, emb: np.ndarray, seed: int, limit: int | None):
+        dims = crowd.dims
+        self.crowd, self.id, self.text, self.seed, self.limit = crowd, ident, text, seed, limit
+        self.rng = make_rngs([seed])[0]
+        self._condition(emb)
+        span = crowd.window + crowd.refresh
+        self.history = np.zeros((span, dims.num_levels), np.int64)   # token t at t % span, as EndlessLoop
+        self.last = np.zeros(dims.num_levels, np.int64)
+        self.count = 0            # tokens picked
+        self.motion = 0           # tokens since the motion (re)started
+        self.cached = 0           # motion tokens in the context after its prefix
+        self.length = 0           # steps in the cache (the next one is written at slot `length`)
+        self.rebuild = True       # the next token starts a context with nothing kept
+        self.restarts = 0
+        self.decoded = np.zeros((crowd.decode_window, dims.num_levels), np.int64)  # FrameStreamer's ring
+        self.pending = 0          # tokens whose frames were not returned yet
+        self.frames = 0           # frames returned
+        self.integrator, self.lock = RootIntegrator(crowd.num_joints), FootLock(crowd.num_joints)
+        self.switches: deque[tuple[int, str]] = deque(maxlen=SWITCH_HISTORY)
+
+    def _condition(self, emb: np.ndarray) -> None:
+        # the unconditional branch is the all-zero text embedding the model was trained to see
+        self.rows_emb = np.concatenate([emb, np.zeros_like(emb)]) if self.crowd.guided else emb
+
+    @property
+    def done(self) -> bool:
+        return self.limit is not None and self.count >= self.limit
+
+    def set_prompt(self, text: str) -> None:
+        """Follow `text` from this character's next token on (frames already decoded are not changed)."""
+        if not isinstance(text, str):
+            raise ValueError(f"set_prompt() takes one prompt (str), got {type(text).__name__}")
+        self._condition(self.crowd.backend.encode_text(check_texts([text])))
+        self.text, self.rebuild = text, True
+        self.switches.append((self.count, text))
+
+    def __repr__(self) -> str:
+        return f"Character({self.id}, {self.text!r}, seed={self.seed}, tokens={self.count})"
+
+
+class Crowd:
+    """Characters that come and go, stepped together: `tick()` advances every one by a token.
+
+    `sampling`: one SamplingConfig for the crowd (default the bundle's). `chunk`: tokens per decode after the
+    first, as `MotionGenerator.stream`'s.
+    """
+
+    def __init__(self, gen: "MotionGenerator", sampling: SamplingConfig | None = None, chunk: int = 4):
+        if not isinstance(gen.backend, FixedCacheBackend):
+            raise ValueError(f"a crowd steps its characters together through the fixed-capacity step graph, and "
+                             f"variant {gen.variant!r} has the growing cache (whose rows must share one length) or "
+                             f"runs one row per call (dynamic int8): use MotionGenerator(..., variant='portable')")
+        if not gen.endless:
+            raise ValueError("this bundle was not trained for endless streams (its manifest has no 'streaming' "
+                             "section): a crowd's characters stream without end")
+        if sampling is None:
+            sampling = gen.sampling_defaults
+        elif not isinstance(sampling, SamplingConfig):
+            raise ValueError(f"sampling must be a SamplingConfig or None (the bundle's defaults), got {sampling!r}")
+        if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or not 1 <= chunk <= 1024:
+            raise ValueError(f"chunk must be an int in [1, 1024], got {chunk!r}")
+        self.gen, self.backend, self.dims, self.sampling = gen, gen.backend, gen.dims, sampling
+        spec = gen.bundle.manifest.streaming
+        self.window, self.refresh, self.chunk = spec.window, spec.refresh, int(chunk)
+        self.guided = sampling.guidance != 1.0
+        self.per_character = 2 if self.guided else 1        # rows: the prompt, and the unconditional branch
+        self.num_joints = (self.dims.feature_dim + 1) // 12
+        self.decode_window = self.dims.receptive_field + self.chunk
+        self.characters: list[Character] = []             # slot i owns cache rows [i * per, (i + 1) * per)
+        cache_shape = (0, self.backend.cache_heads, self.backend.capacity, self.dims.head_dim)
+        self.cache = [np.zeros(cache_shape, np.float32) for _ in self.backend.past_names]
+        self._next_id = 0
+
+    def __len__(self) -> int:
+        return len(self.characters)
+
+    def add(self, text: str, seed: int = 0, seconds: float | None = None) -> Character:
+        """A new character following `text`, from the next tick; `seconds`: it leaves after that much motion."""
+        if not isinstance(text, str):
+            raise ValueError(f"add() takes one prompt (str), got {type(text).__name__}")
+        limit = self.gen.tokens_for(seconds)
+        (seed,) = expand_seeds(seed, 1)
+        emb = self.backend.encode_text(check_texts([text]))       # one prompt per call: padding never mixes
+        character = Character(self, self._next_id, text, emb, seed, limit)
+        self._next_id += 1
+        rows = np.zeros((self.per_character,) + self.cache[0].shape[1:], np.float32)
+        self.cache = [np.concatenate([c, rows]) for c in self.cache]
+        self.characters.append(character)
+        return character
+
+    def remove(self, character: Character) -> None:
+        """Take a character out; its frames not yet decoded are dropped (as closing a stream drops them)."""
+        slot = self._slot(character)
+        keep = np.ones(len(self.cache[0]), bool)
+        keep[slot * self.per_character:(slot + 1) * self.per_character] = False
+        self.cache = [c[keep] for c in self.cache]
+        del self.characters[slot]
+
+    def _slot(self, character: Character) -> int:
+        for i, c in enumerate(self.characters):
+            if c is character:
+                return i
+        raise ValueError(f"{character!r} is not in this crowd")
+
+    # ------------------------------------------------------------------------------------------ the tick
+
+    def tick(self) -> dict[Character, Frames]:
+        """Every character one token further; -> the frames each character got this tick (decoded `chunk`
+        tokens at a time). Characters whose `seconds` are done get their last frames and leave."""
+        if not self.characters:
+            return {}
+        plans = [self._plan(c) for c in self.characters]
+        picked = self._pick(self.characters, plans, retry=False)
+        ended = [i for i, c in enumerate(self.characters) if picked[i, 0] == self.dims.end_id]
+        if ended:       # END: the prompt starts again with nothing kept, and picks again with END forbidden
+            again = [self.characters[i] for i in ended]
+            for c in again:
+                c.rebuild, c.restarts = True, c.restarts + 1
+            picked[ended] = self._pick(again, [self._plan(c) for c in again], retry=True)
+        for c, p in zip(self.characters, picked):
+            c.motion += 1
+            c.history[c.count % len(c.history)] = c.last = p
+            c.count += 1
+        out = self._decode()
+        for c in [c for c in self.characters if c.done]:
+            self.remove(c)
+        return out
+
+    def _plan(self, c: Character) -> tuple[np.ndarray, int]:
+        """-> (the tokens this character feeds now (S, L), the cache slot of the first), as EndlessLoop._step."""
+        if c.rebuild or c.cached == self.window + self.refresh:
+            n = 0 if c.rebuild else self.window
+            if n == 0:
+                c.motion = 0
+            ring = (c.count - n + np.arange(n)) % len(c.history)                 # the last n, oldest first
+            bos = np.full((1, self.dims.num_levels), self.dims.bos_id, np.int64)
+            c.rebuild, c.cached, c.length = False, n, 0
+            return np.concatenate([bos, c.history[ring]]), 0
+        c.cached += 1
+        return c.last[None], c.length
+
+    def _pick(self, chars: list[Character], plans: list[tuple[np.ndarray, int]], retry: bool) -> np.ndarray:
+        """Feed every character its planned tokens (right-aligned calls) and sample its next tokens (C, L)."""
+        per, dims = self.per_character, self.dims
+        slots = np.array([self._slot(c) for c in chars]) if len(chars) != len(self.characters) else None
+        sizes = np.array([len(tokens) for tokens, _ in plans])
+        longest = int(sizes.max())
+        logits = None
+        for k in range(longest):
+            members = np.flatnonzero(sizes >= longest - k)                       # who feeds a token in call k
+            offset = sizes[members] - (longest - k)                              # its index in its own plan
+            tokens = np.stack([plans[m][0][o] for m, o in zip(members, offset)])            # (M, L)
+            position = np.array([plans[m][1] + o for m, o in zip(members, offset)], np.int64)
+            char_slots = members if slots is None else slots[members]
+            logits = self._step(char_slots, [chars[m] for m in members], tokens, position)
+        for c, (tokens, start) in zip(chars, plans):
+            c.length = start + len(tokens)
+        logits = logits[:, 0]                                                    # (C * per, L, K + 1)
+        if self.guided:
+            logits = apply_guidance(logits[0::2], logits[1::2], self.sampling.guidance)
+        logits = np.array(logits, dtype=np.float32)                              # own copy: masked below
+        logits[:, 1:, dims.end_id] = -np.inf          # only the coarsest stream may end the motion
+        for i, c in enumerate(chars):
+            if retry or c.motion < 1:
+                logits[i, 0, dims.end_id] = -np.inf
+        return sample(logits, self.sampling, [c.rng for c in chars])
+
+    def _step(self, slots: np.ndarray, chars: list[Character], tokens: np.ndarray, position: np.ndarray):
+        """One call of the portable step for the characters in `slots` (their rows of the crowd's cache)."""
+        per = self.per_character
+        every = len(slots) == len(self.characters) and (slots == np.arange(len(slots))).all()
+        rows = slice(None) if every else (slots[:, None] * per + np.arange(per)).ravel()
+        b = self.backend
+        feed = {"text_embedding": np.concatenate([c.rows_emb for c in chars]),
+                "tokens": np.repeat(tokens, per, axis=0)[:, None],
+                "position": np.repeat(position, per),
+                **{name: c[rows] for name, c in zip(b.past_names, self.cache)}}
+        out = b.step_session.run(b.output_names, feed)
+        if every:
+            self.cache = out[1:]
+        else:
+            for c, present in zip(self.cache, out[1:]):
+                c[rows] = present
+        return b._finite("step", out[0])                                         # (rows, 1, L, K + 1)
+
+    def _decode(self) -> dict[Character, Frames]:
+        """FrameStreamer's windows for every character, one decoder call per window length."""
+        ds, rf = self.dims.downsample, self.dims.receptive_field
+        groups: dict[int, list[Character]] = {}
+        for c in self.characters:
+            c.decoded[:-1] = c.decoded[1:]
+            c.decoded[-1] = c.last
+            c.pending += 1
+            if c.count == 1 or c.pending >= self.chunk or c.done:
+                groups.setdefault(min(c.count, rf + c.pending), []).append(c)
+        out = {}
+        for n, chars in groups.items():
+            features = self.backend.decode(np.stack([c.decoded[len(c.decoded) - n:] for c in chars]))
+            for c, f in zip(chars, features):
+                f = f[len(f) - c.pending * ds:]
+                out[c] = Frames(c.frames, f, c.lock.push(c.integrator.push(f), f))
+                c.frames += len(f)
+                c.pending = 0
+        return out

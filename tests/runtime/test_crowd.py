@@ -1,0 +1,125 @@
+"""A crowd: characters stepped together in batched calls move exactly as each would alone (tokens and frames bit for
+bit), whoever joins, switches prompt, restarts at END or leaves; variants that cannot batch are refused."""
+import numpy as np
+import pytest
+from toy_bundle import portable_toy_bundle  # noqa: F401  (a fixture)
+
+from mogo_runtime import MotionGenerator, SamplingConfig
+from mogo_runtime.crowd import Crowd
+
+PROMPTS = ["a person walks forward", "a person waves with the right hand", "a person jumps in place",
+           "a person turns left", "a person kicks"]
+# (prompt, seed, tick it joins at, seconds or None, (token, new prompt) or None)
+PLAN = [(PROMPTS[0], 1, 0, None, (9, PROMPTS[3])), (PROMPTS[1], 2, 0, 6.0, None), (PROMPTS[2], 3, 3, None, None),
+        (PROMPTS[4], 7, 5, 4.0, None), (PROMPTS[3], 11, 2, None, (17, PROMPTS[1])), (PROMPTS[0], 2 ** 63 - 1, 1, None, None)]
+TICKS = 60
+
+
+@pytest.fixture(scope="module")
+def gen(portable_toy_bundle):  # noqa: F811
+    return MotionGenerator(portable_toy_bundle, variant="portable")
+
+
+def run_crowd(gen, sampling, plan=PLAN, ticks=TICKS, leave=None):
+    """-> per plan row: (joints (T, J, 3), features (T, D), the Character). `leave`: {row: tick it is removed at}."""
+    crowd = Crowd(gen, sampling=sampling)
+    chars, joints, features = {}, {}, {}
+    for t in range(ticks):
+        for i, (prompt, seed, start, seconds, _) in enumerate(plan):
+            if t == start:
+                chars[i] = crowd.add(prompt, seed=seed, seconds=seconds)
+                joints[i], features[i] = [], []
+        for i, c in list(chars.items()):
+            if leave and leave.get(i) == t and c in crowd.characters:
+                crowd.remove(c)
+        row = {c: i for i, c in chars.items()}
+        for c, frames in crowd.tick().items():
+            assert frames.index == sum(len(j) for j in joints[row[c]])
+            joints[row[c]].append(frames.joints)
+            features[row[c]].append(frames.features)
+        for i, c in chars.items():
+            switch = plan[i][4]
+            if switch and c.count == switch[0] and c in crowd.characters:
+                c.set_prompt(switch[1])
+    return {i: (np.concatenate(joints[i]), np.concatenate(features[i]), chars[i]) for i in chars}
+
+
+def run_alone(gen, sampling, prompt, seed, seconds, switch, frames):
+    """The same character through gen.stream, switching at the same token; its first `frames` frames."""
+    stream = gen.stream(prompt, seed=seed, seconds=seconds, sampling=sampling)
+    joints, features = [], []
+    for frame in stream:
+        joints.append(frame.joints)
+        features.append(frame.features)
+        if switch and stream.tokens == switch[0] and len(joints) == switch[0] * gen.dims.downsample:
+            stream.set_prompt(switch[1])
+        if len(joints) == frames:
+            break
+    stream.close()
+    return np.stack(joints), np.stack(features), stream
+
+
+@pytest.mark.parametrize("sampling", [None, SamplingConfig(temperature=1.0, top_k=20), SamplingConfig(temperature=0.0)],
+                         ids=["bundle-defaults", "top-k", "greedy"])
+def test_a_character_in_a_crowd_moves_as_it_would_alone(gen, sampling):
+    crowd = run_crowd(gen, sampling)
+    restarts = switched = 0
+    for i, (prompt, seed, start, seconds, switch) in enumerate(PLAN):
+        joints, features, character = crowd[i]
+        want_frames = (gen.tokens_for(seconds) if seconds else TICKS - start) * gen.dims.downsample
+        assert len(joints) <= want_frames and (seconds is None or len(joints) == want_frames)
+        alone_joints, alone_features, stream = run_alone(gen, sampling, prompt, seed, seconds, switch, len(joints))
+        assert np.array_equal(alone_features, features), f"character {i}: features differ from its lone stream"
+        assert np.array_equal(alone_joints, joints), f"character {i}: joints differ from its lone stream"
+        assert [t for t, _ in character.switches] == [t for t, _, _ in stream.switches]
+        restarts += character.restarts
+        switched += len(character.switches)
+    print(f"\n{len(PLAN)} characters, {sum(len(c[0]) for c in crowd.values())} frames identical to their lone streams; "
+          f"{switched} prompt switches, {restarts} END restarts")
+    assert switched == 2
+    if sampling is None or not sampling.greedy:
+        assert restarts > 0, "the plan never exercised an END restart"
+
+
+def test_who_leaves_does_not_change_who_stays(gen):
+    everyone = run_crowd(gen, None)
+    fewer = run_crowd(gen, None, leave={0: 12, 2: 20})
+    for i in (1, 3, 4, 5):
+        assert np.array_equal(everyone[i][0], fewer[i][0]), f"character {i} changed when others left"
+    assert len(fewer[0][0]) < len(everyone[0][0])
+    assert np.array_equal(fewer[0][0], everyone[0][0][:len(fewer[0][0])])
+
+
+def test_characters_with_seconds_leave_by_themselves(gen):
+    crowd = Crowd(gen)
+    a, b = crowd.add(PROMPTS[0], seconds=1.0), crowd.add(PROMPTS[1])
+    frames = {a: 0, b: 0}
+    for _ in range(gen.tokens_for(1.0)):
+        for c, f in crowd.tick().items():
+            frames[c] += len(f.joints)
+    assert crowd.characters == [b] and len(crowd) == 1
+    assert frames[a] == gen.tokens_for(1.0) * gen.dims.downsample
+
+
+def test_variants_that_cannot_batch_are_refused(portable_toy_bundle):  # noqa: F811
+    for variant in ("fp32", "int8"):
+        with pytest.raises(ValueError, match="fixed-capacity step graph"):
+            Crowd(MotionGenerator(portable_toy_bundle, variant=variant))
+
+
+def test_bad_arguments_are_refused(gen):
+    crowd = Crowd(gen)
+    with pytest.raises(ValueError, match="one prompt"):
+        crowd.add(["a", "b"])
+    with pytest.raises(ValueError, match="seed"):
+        crowd.add("a person walks", seed=-1)
+    with pytest.raises(ValueError, match="seconds"):
+        crowd.add("a person walks", seconds=0)
+    with pytest.raises(ValueError, match="chunk"):
+        Crowd(gen, chunk=0)
+    with pytest.raises(ValueError, match="SamplingConfig"):
+        Crowd(gen, sampling={"temperature": 1.0})
+    other = Crowd(gen).add("a person walks")
+    with pytest.raises(ValueError, match="not in this crowd"):
+        crowd.remove(other)
+    assert crowd.tick() == {} and len(crowd) == 0
