@@ -7,7 +7,7 @@
 // the range of the whole input tensor, so in a batch a row's numbers would depend on its neighbours
 // (docs/bundle.md, the generation loop, step 3). Their cache is then one list of tensors per row.
 
-import { BundleError, GRAPHS, fixedCache, graphFile } from './manifest.js';
+import { BundleError, GRAPHS, PER_ROW_INT8, fixedCache, graphFile } from './manifest.js';
 import { Tokenizer } from './tokenizer.js';
 import { createSession } from './io.js';
 
@@ -49,7 +49,9 @@ export class OrtBackend {
       }
       bundle.checkSession(graph, file, sessions[graph], variant);
     }
-    const rowByRow = new Set(GRAPHS.filter((g) => graphFile(manifest, g, variant).quantized));
+    // per-tensor int8 scales a batch by all its rows; per-row int8 (int8_fixed's step) does not depend on them
+    const rowByRow = new Set(GRAPHS.filter((g) => graphFile(manifest, g, variant).quantized
+      && graphFile(manifest, g, variant).quantization.method !== PER_ROW_INT8));
     return new OrtBackend(ort, manifest, variant, tokenizer, sessions, rowByRow);
   }
 

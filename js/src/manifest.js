@@ -11,6 +11,7 @@ export const SCHEMA = 'mogo-bundle';
 export const SCHEMA_VERSION = 2;   // 2: cache-name templates; `normalization` an object; numbers stored as numbers
 export const GRAPHS = ['text_encoder', 'step', 'lookup', 'decoder'];
 export const DTYPES = ['float32', 'int64', 'float16'];
+export const PER_ROW_INT8 = 'mogo.per_row_dynamic';   // one activation scale per row: batch-invariant int8
 const NORMALIZATION = 'decoder-output-denormalised';   // decoder.onnx multiplies by Std and adds Mean itself
 // name -> rank of each graph's fixed inputs and outputs (the step graph's cache names come from `cache`)
 const GRAPH_IO = {
@@ -185,9 +186,9 @@ export function sourceVariant(manifest, variant) {
   return manifest.ort?.variants[variant] ?? variant;
 }
 
-/** Whether the variant's step graph is the portable one (fixed-capacity cache, `position` input). */
+/** Whether the variant's step graph is the portable one or its per-row int8 form (fixed-capacity cache, `position` input). */
 export function fixedCache(manifest, variant) {
-  return manifest.portable !== null && sourceVariant(manifest, variant) === 'portable';
+  return manifest.portable !== null && ['portable', 'int8_fixed'].includes(sourceVariant(manifest, variant));
 }
 
 /** The inputs and outputs a variant's graph has: the portable step's differ from `graphs.step`. */

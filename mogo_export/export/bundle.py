@@ -30,7 +30,8 @@ from onnxruntime.quantization import QuantType, quantize_dynamic
 
 from mogo_runtime.bundle import sha256_file
 from mogo_runtime.files import process_alive, write_atomic
-from mogo_runtime.manifest import (ORT_SUFFIX, PORTABLE, PORTABLE_OPSET, SCHEMA, SCHEMA_VERSION, GraphFile, GraphSpec,
+from mogo_runtime.manifest import (INT8_FIXED, ORT_SUFFIX, PER_ROW_INT8, PORTABLE, PORTABLE_OPSET, SCHEMA,
+                                   SCHEMA_VERSION, GraphFile, GraphSpec,
                                    Manifest, Normalization, OrtFormat, PortableSpec, StreamingSpec, TensorSpec,
                                    TextEncoderSpec, required_capacity)
 from mogo_runtime.sampling import SamplingConfig
@@ -46,6 +47,7 @@ from .graphs import DEFAULT_OPSET, export_decoder, export_lookup, export_step
 from .opset import portable_problems
 from .ort_format import to_ort, write_required_operators
 from .portable import export_portable_step
+from .rowquant import quantize_per_row
 from .text_encoder import export_text_encoder, quantize_text_encoder
 
 INT8_GRAPHS = ("step", "text_encoder")  # lookup and decoder stay fp32: ConvInteger ran slower than fp32 here
@@ -79,6 +81,15 @@ def quantize_step(fp32: Path, int8: Path) -> dict:
                          op_types_to_quantize=["MatMul", "Gemm"])
     finally:
         bare.unlink(missing_ok=True)
+    return options
+
+
+def quantize_step_per_row(fp32: Path, int8: Path) -> dict:
+    """quantize_step, then one activation scale per row (rowquant.py): int8 whose rows never depend on their
+    batch. On base's portable step, teacher-forced argmax agreement with fp32 0.986 (per-tensor: 0.986 on the
+    same graph, 0.977 on the dynamic step), over 36 prompts, 1,263 steps."""
+    options = quantize_step(fp32, int8)
+    onnx.save(quantize_per_row(onnx.load(str(int8))), str(int8))
     return options
 
 
@@ -182,6 +193,11 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
                 problems = portable_problems(onnx.load(str(tmp / entry.file)), shared_opset)
                 if problems:
                     raise RuntimeError(f"{entry.file} cannot be in the portable variant: {'; '.join(problems)}")
+            if "step" in int8:
+                log("quantizing the portable step to per-row int8 ...")
+                options = quantize_step_per_row(tmp / "step.portable.onnx", tmp / "step.portable.int8.onnx")
+                variants[INT8_FIXED] = {**variants["int8"], "step": GraphFile("step.portable.int8.onnx",
+                                                                             {"method": PER_ROW_INT8, **options})}
         ort_format = _write_ort(tmp, variants, ort, log) if ort else None
         te_meta = te.get("metadata", {})
         manifest = Manifest(

@@ -18,10 +18,11 @@ bit for bit what `gen.stream(prompt, seed=seed)` gives it alone, whoever else is
 (tests/runtime/test_crowd.py). That rests on the graphs computing each row on its own, which was checked on
 `base`: a row's logits and decoded features are identical alone and in a batch of 24.
 
-The step graph must be the fixed-capacity one (variant `portable`): each row carries its own `position`, so
-characters at different points of their contexts share one call. A context rebuild (every `refresh` tokens, at END
+The step graph must be the fixed-capacity one (variant `portable`, or `int8_fixed`: the same graph in int8 with one
+activation scale per row, where per-tensor int8 would make a character's numbers depend on its neighbours): each
+row carries its own `position`, so characters at different points of their contexts share one call. A context rebuild (every `refresh` tokens, at END
 and at a prompt switch) feeds its tokens one call each; the characters rebuilding in the same tick share those
-calls, right-aligned so that every character's last token is in the tick's final call.
+calls, and every character's last token of the tick goes into one final call over the whole crowd.
 """
 from __future__ import annotations
 
@@ -103,10 +104,12 @@ class Crowd:
     """
 
     def __init__(self, gen: "MotionGenerator", sampling: SamplingConfig | None = None, chunk: int = 4):
-        if not isinstance(gen.backend, FixedCacheBackend):
+        fixed = getattr(gen.backend, "inner", gen.backend)        # under RowByRow when the text encoder is int8
+        if not isinstance(fixed, FixedCacheBackend) or "step" in getattr(gen.backend, "graphs", ()):
             raise ValueError(f"a crowd steps its characters together through the fixed-capacity step graph, and "
                              f"variant {gen.variant!r} has the growing cache (whose rows must share one length) or "
-                             f"runs one row per call (dynamic int8): use MotionGenerator(..., variant='portable')")
+                             f"runs one row per call (per-tensor int8): use MotionGenerator(..., variant='portable') "
+                             f"or variant='int8_fixed' (per-row int8)")
         if not gen.endless:
             raise ValueError("this bundle was not trained for endless streams (its manifest has no 'streaming' "
                              "section): a crowd's characters stream without end")
@@ -116,7 +119,7 @@ class Crowd:
             raise ValueError(f"sampling must be a SamplingConfig or None (the bundle's defaults), got {sampling!r}")
         if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or not 1 <= chunk <= 1024:
             raise ValueError(f"chunk must be an int in [1, 1024], got {chunk!r}")
-        self.gen, self.backend, self.dims, self.sampling = gen, gen.backend, gen.dims, sampling
+        self.gen, self.backend, self.fixed, self.dims, self.sampling = gen, gen.backend, fixed, gen.dims, sampling
         spec = gen.bundle.manifest.streaming
         self.window, self.refresh, self.chunk = spec.window, spec.refresh, int(chunk)
         self.guided = sampling.guidance != 1.0
@@ -124,8 +127,9 @@ class Crowd:
         self.num_joints = (self.dims.feature_dim + 1) // 12
         self.decode_window = self.dims.receptive_field + self.chunk
         self.characters: list[Character] = []             # slot i owns cache rows [i * per, (i + 1) * per)
-        cache_shape = (0, self.backend.cache_heads, self.backend.capacity, self.dims.head_dim)
-        self.cache = [np.zeros(cache_shape, np.float32) for _ in self.backend.past_names]
+        cache_shape = (0, fixed.cache_heads, fixed.capacity, self.dims.head_dim)
+        self.cache = [np.zeros(cache_shape, np.float32) for _ in fixed.past_names]
+        self._spare = [np.zeros(cache_shape, np.float32) for _ in fixed.past_names]
         self._next_id = 0
 
     def __len__(self) -> int:
@@ -197,19 +201,35 @@ class Crowd:
         return c.last[None], c.length
 
     def _pick(self, chars: list[Character], plans: list[tuple[np.ndarray, int]], retry: bool) -> np.ndarray:
-        """Feed every character its planned tokens (right-aligned calls) and sample its next tokens (C, L)."""
-        per, dims = self.per_character, self.dims
-        slots = np.array([self._slot(c) for c in chars]) if len(chars) != len(self.characters) else None
+        """Feed every character its planned tokens and sample its next tokens (C, L).
+
+        A plan of more than one token is a rebuild from an empty context: its tokens but the last run on a fresh
+        scratch cache (those characters only), which then replaces their rows of the crowd's cache. Every
+        character's last token goes into one call over all of them."""
+        dims, per = self.dims, self.per_character
+        slots = np.array([self._slot(c) for c in chars])
+        rows = (slots[:, None] * per + np.arange(per)).ravel()
+        every = len(chars) == len(self.characters)
         sizes = np.array([len(tokens) for tokens, _ in plans])
-        longest = int(sizes.max())
-        logits = None
-        for k in range(longest):
-            members = np.flatnonzero(sizes >= longest - k)                       # who feeds a token in call k
-            offset = sizes[members] - (longest - k)                              # its index in its own plan
-            tokens = np.stack([plans[m][0][o] for m, o in zip(members, offset)])            # (M, L)
-            position = np.array([plans[m][1] + o for m, o in zip(members, offset)], np.int64)
-            char_slots = members if slots is None else slots[members]
-            logits = self._step(char_slots, [chars[m] for m in members], tokens, position)
+        for size in sorted(set(sizes[sizes > 1].tolist())):
+            group = np.flatnonzero(sizes == size)
+            scratch = self._scratch(len(group) * per)
+            emb = np.concatenate([chars[m].rows_emb for m in group])
+            for k in range(size - 1):
+                self._step(emb, np.stack([plans[m][0][k] for m in group]), np.full(len(group), k), scratch)
+            group_rows = (slots[group][:, None] * per + np.arange(per)).ravel()
+            for c, fresh in zip(self.cache, scratch):
+                c[group_rows] = fresh
+        emb = np.concatenate([c.rows_emb for c in chars])
+        last = np.stack([tokens[-1] for tokens, _ in plans])
+        position = np.array([start + len(tokens) - 1 for tokens, start in plans], np.int64)
+        if every:                   # the crowd's own cache, written in place
+            logits = self._step(emb, last, position, self.cache)
+        else:                       # a retry after END: fresh contexts, then their rows of the crowd's cache
+            scratch = self._scratch(len(rows))
+            logits = self._step(emb, last, position, scratch)
+            for c, fresh in zip(self.cache, scratch):
+                c[rows] = fresh
         for c, (tokens, start) in zip(chars, plans):
             c.length = start + len(tokens)
         logits = logits[:, 0]                                                    # (C * per, L, K + 1)
@@ -222,23 +242,32 @@ class Crowd:
                 logits[i, 0, dims.end_id] = -np.inf
         return sample(logits, self.sampling, [c.rng for c in chars])
 
-    def _step(self, slots: np.ndarray, chars: list[Character], tokens: np.ndarray, position: np.ndarray):
-        """One call of the portable step for the characters in `slots` (their rows of the crowd's cache)."""
-        per = self.per_character
-        every = len(slots) == len(self.characters) and (slots == np.arange(len(slots))).all()
-        rows = slice(None) if every else (slots[:, None] * per + np.arange(per)).ravel()
-        b = self.backend
-        feed = {"text_embedding": np.concatenate([c.rows_emb for c in chars]),
-                "tokens": np.repeat(tokens, per, axis=0)[:, None],
-                "position": np.repeat(position, per),
-                **{name: c[rows] for name, c in zip(b.past_names, self.cache)}}
-        out = b.step_session.run(b.output_names, feed)
-        if every:
-            self.cache = out[1:]
-        else:
-            for c, present in zip(self.cache, out[1:]):
-                c[rows] = present
-        return b._finite("step", out[0])                                         # (rows, 1, L, K + 1)
+    def _scratch(self, rows: int) -> list[np.ndarray]:
+        """Caches for `rows` rows that start a context: kept between ticks, as a fresh allocation of this size
+        would fault in its pages every time. What earlier contexts left there is masked out of attention (a
+        context at position p reads slots 0..p only), so only finiteness matters: zeros at first."""
+        if len(self._spare[0]) < rows:
+            self._spare = [np.zeros((rows,) + c.shape[1:], np.float32) for c in self.cache]
+        return [a[:rows] for a in self._spare]
+
+    def _step(self, emb: np.ndarray, tokens: np.ndarray, position: np.ndarray, cache: list[np.ndarray]):
+        """One portable step call, tokens (C, L) and positions (C,) per character, on `cache` (its rows for
+        these characters, contiguous) in place: each array is bound as both the past and the present, so the
+        graph's ScatterElements writes the new slot where it is instead of copying the whole cache first (that
+        copy was half a step's time on base; the results are the same bits, tests/runtime/test_crowd.py)."""
+        b, per = self.fixed, self.per_character
+        binding = b.step_session.io_binding()
+        binding.bind_cpu_input("text_embedding", np.ascontiguousarray(emb, dtype=np.float32))
+        binding.bind_cpu_input("tokens", np.ascontiguousarray(np.repeat(tokens, per, axis=0)[:, None], np.int64))
+        binding.bind_cpu_input("position", np.repeat(position, per).astype(np.int64))
+        logits = np.empty((len(emb), 1, self.dims.num_levels, self.dims.codebook_size + 1), np.float32)
+        # every output bound to our arrays: fetching outputs from the binding would copy the caches back
+        binding.bind_output("logits", "cpu", 0, np.float32, list(logits.shape), logits.ctypes.data)
+        for past, present, array in zip(b.past_names, b.output_names[1:], cache):
+            binding.bind_cpu_input(past, array)
+            binding.bind_output(present, "cpu", 0, np.float32, list(array.shape), array.ctypes.data)
+        b.step_session.run_with_iobinding(binding)
+        return b._finite("step", logits)                                         # (rows, 1, L, K + 1)
 
     def _decode(self) -> dict[Character, Frames]:
         """FrameStreamer's windows for every character, one decoder call per window length."""

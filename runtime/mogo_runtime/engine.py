@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bundle import Bundle, BundleError
-from .manifest import GRAPHS, ModelDims
+from .manifest import GRAPHS, PER_ROW_INT8, ModelDims
 from .text import TextEncoderSession, check_threads, session_options
 
 class NonFiniteOutput(BundleError):
@@ -20,12 +20,13 @@ class NonFiniteOutput(BundleError):
 
 
 def open_backend(bundle: Bundle, variant: str = "fp32", threads: int = 1):
-    """The backend for one variant: the portable step through FixedCacheBackend, quantized graphs one row at a
-    time (see RowByRow)."""
+    """The backend for one variant: the portable step through FixedCacheBackend, graphs quantized per tensor one
+    row at a time (see RowByRow; per-row int8 is batch-invariant and runs batched)."""
     portable = variant in bundle.manifest.variants and bundle.manifest.fixed_cache(variant)
     backend = (FixedCacheBackend if portable else OrtBackend)(bundle, variant, threads)
-    quantized = {g for g in GRAPHS if bundle.manifest.graph_file(g, variant).quantized}
-    return RowByRow(backend, quantized) if quantized else backend
+    row_by_row = {g for g in GRAPHS if bundle.manifest.graph_file(g, variant).quantized and
+                  bundle.manifest.graph_file(g, variant).quantization.get("method") != PER_ROW_INT8}
+    return RowByRow(backend, row_by_row) if row_by_row else backend
 
 
 class OrtBackend:

@@ -28,6 +28,8 @@ GRAPH_IO = {"text_encoder": ({"input_ids": 2, "attention_mask": 2}, {"text_embed
             "decoder": ({"latent": 3}, {"features": 3})}
 DTYPES = {"float32": "tensor(float)", "int64": "tensor(int64)", "float16": "tensor(float16)"}  # -> onnxruntime
 PORTABLE = "portable"          # the variant whose step graph has a fixed-capacity cache (section `portable`)
+INT8_FIXED = "int8_fixed"      # the same step graph in per-row int8: batch-invariant, so a crowd can batch it
+PER_ROW_INT8 = "mogo.per_row_dynamic"   # its quantization method: one activation scale per row (export/rowquant.py)
 PORTABLE_OPSET = 17            # its graphs' opset: this or lower (LayerNormalization's first; docs/bundle.md)
 ORT_SUFFIX = ".ort"            # graph files in onnxruntime's ORT format (section `ort`)
 NORMALIZATION = "decoder-output-denormalised"   # decoder.onnx multiplies by Std and adds Mean itself
@@ -244,8 +246,9 @@ class Manifest:
         return self.ort.variants.get(variant, variant) if self.ort else variant
 
     def fixed_cache(self, variant: str) -> bool:
-        """Whether the variant's step graph is the portable one (fixed-capacity cache, `position` input)."""
-        return self.source_variant(variant) == PORTABLE
+        """Whether the variant's step graph is the portable one or its per-row int8 form (fixed-capacity cache,
+        `position` input)."""
+        return self.source_variant(variant) in (PORTABLE, INT8_FIXED)
 
     def graph_spec(self, graph: str, variant: str) -> GraphSpec:
         """The inputs and outputs a variant's graph has: the portable step's differ from `graphs.step`."""
@@ -328,12 +331,19 @@ class Manifest:
             raise BundleError(f"{where}: field portable: " + (
                 "the bundle has no 'portable' variant for it to describe" if self.portable else
                 "missing: variant 'portable' needs this section (its step graph's inputs, outputs and capacity)"))
+        if INT8_FIXED in self.variants and PORTABLE not in self.variants:
+            raise BundleError(f"{where}: field variants.{INT8_FIXED}: comes with variant {PORTABLE!r}, whose section "
+                              f"'portable' describes its step graph")
         if self.portable is None:
             return
         quantized = [g for g, e in self.variants[PORTABLE].items() if e.quantized]
         if quantized:
             raise BundleError(f"{where}: field variants.{PORTABLE}.{quantized[0]}.quantization: the portable "
                               f"variant is fp32 only (no int8 operators)")
+        step = self.variants[INT8_FIXED]["step"] if INT8_FIXED in self.variants else None
+        if step is not None and (step.quantization or {}).get("method") != PER_ROW_INT8:
+            raise BundleError(f"{where}: field variants.{INT8_FIXED}.step.quantization: its step graph is the "
+                              f"portable step quantized per row (method {PER_ROW_INT8!r}), got {step.quantization!r}")
         m, spec, cap = self.model, self.portable.step, self.portable.capacity
         cache = [m.num_levels * m.n_heads, cap, m.head_dim]
         want = {"inputs": {"text_embedding": ("float32", [m.text_dim]), "tokens": ("int64", [1, m.num_levels]),

@@ -15,9 +15,9 @@ PLAN = [(PROMPTS[0], 1, 0, None, (9, PROMPTS[3])), (PROMPTS[1], 2, 0, 6.0, None)
 TICKS = 60
 
 
-@pytest.fixture(scope="module")
-def gen(portable_toy_bundle):  # noqa: F811
-    return MotionGenerator(portable_toy_bundle, variant="portable")
+@pytest.fixture(scope="module", params=["portable", "int8_fixed"])
+def gen(portable_toy_bundle, request):  # noqa: F811
+    return MotionGenerator(portable_toy_bundle, variant=request.param)
 
 
 def run_crowd(gen, sampling, plan=PLAN, ticks=TICKS, leave=None):
@@ -74,7 +74,7 @@ def test_a_character_in_a_crowd_moves_as_it_would_alone(gen, sampling):
         assert [t for t, _ in character.switches] == [t for t, _, _ in stream.switches]
         restarts += character.restarts
         switched += len(character.switches)
-    print(f"\n{len(PLAN)} characters, {sum(len(c[0]) for c in crowd.values())} frames identical to their lone streams; "
+    print(f"\n{gen.variant}: {len(PLAN)} characters, {sum(len(c[0]) for c in crowd.values())} frames identical to their lone streams; "
           f"{switched} prompt switches, {restarts} END restarts")
     assert switched == 2
     if sampling is None or not sampling.greedy:
@@ -102,7 +102,7 @@ def test_characters_with_seconds_leave_by_themselves(gen):
 
 
 def test_variants_that_cannot_batch_are_refused(portable_toy_bundle):  # noqa: F811
-    for variant in ("fp32", "int8"):
+    for variant in ("fp32", "int8", "int8_ort"):
         with pytest.raises(ValueError, match="fixed-capacity step graph"):
             Crowd(MotionGenerator(portable_toy_bundle, variant=variant))
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import importlib.util
 import json
 import tempfile
 from pathlib import Path
@@ -25,8 +26,9 @@ from onnx import TensorProto, helper, numpy_helper
 from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
 
 from mogo_runtime.features import FeatureLayout
-from mogo_runtime.manifest import (PORTABLE_OPSET, GraphFile, GraphSpec, Manifest, ModelDims, Normalization, OrtFormat,
-                                   PortableSpec, StreamingSpec, TensorSpec, TextEncoderSpec, required_capacity)
+from mogo_runtime.manifest import (INT8_FIXED, PER_ROW_INT8, PORTABLE_OPSET, GraphFile, GraphSpec, Manifest,
+                                   ModelDims, Normalization, OrtFormat, PortableSpec, StreamingSpec, TensorSpec,
+                                   TextEncoderSpec, required_capacity)
 from mogo_runtime.sampling import SamplingConfig
 from mogo_runtime.skeleton import HUMANML3D
 from mogo_runtime.text import TokenizerSettings, configure_tokenizer
@@ -254,6 +256,16 @@ def to_ort(folder: Path, variants: dict, names: list[str]) -> OrtFormat:
     return OrtFormat("required_operators.config", {f"{v}_ort": v for v in names}, ort.__version__)
 
 
+def _exporter_module(name: str):
+    """mogo_export/export/<name>.py loaded by path: graph rewrites that need only onnx and numpy. The runtime's
+    tests block importing mogo_export (the runtime must never need it); building a test bundle is export work."""
+    path = Path(__file__).resolve().parents[2] / "mogo_export" / "export" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"_toy_exporter_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = True, streaming: bool = True,
                      portable: bool = False, ort: bool = False) -> Path:
     """Write a complete bundle to `out` (graphs, tokenizer.json, manifest.json with sizes and hashes)."""
@@ -279,6 +291,12 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
     if portable:
         onnx.save(step(step_rng, portable_step_spec(), fixed=True, opset=opset), out / "step.portable.onnx")
         variants["portable"] = {**fp32, "step": GraphFile("step.portable.onnx")}
+        if int8:   # the per-row int8 portable step
+            quantize_per_row = _exporter_module("rowquant").quantize_per_row
+            quantize_dynamic(str(out / "step.portable.onnx"), str(out / "step.portable.int8.onnx"),
+                             weight_type=QuantType.QInt8)
+            onnx.save(quantize_per_row(onnx.load(out / "step.portable.int8.onnx")), out / "step.portable.int8.onnx")
+            variants[INT8_FIXED] = {**fp32, "step": GraphFile("step.portable.int8.onnx", {"method": PER_ROW_INT8})}
     ort_format = to_ort(out, variants, [v for v in ("int8", "portable") if v in variants]) if ort else None
     files = {p.name: (p.stat().st_size, hashlib.sha256(p.read_bytes()).hexdigest())
              for p in sorted(out.iterdir()) if p.is_file() and p.name != "manifest.json"}
