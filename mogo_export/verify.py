@@ -30,6 +30,7 @@ from mogo_runtime.bundle import Bundle
 from mogo_runtime.decoding import GenerationTask, decode_tokens
 from mogo_runtime.engine import FixedCache, FixedCacheBackend, OrtBackend, open_backend
 from mogo_runtime.features import recover_from_ric
+from mogo_runtime.manifest import INT8_FIXED
 from mogo_runtime.sampling import GREEDY
 
 from .export.graphs import DecoderGraph, StepGraph
@@ -250,6 +251,20 @@ def check_portable(gen: TorchGenerator, portable: FixedCacheBackend, streaming, 
         check_endless(gen, portable, streaming, report, name="ORT portable")
 
 
+def check_int8_fixed(fp32: OrtBackend, fixed, report: Report, th: Thresholds, prompts=PROMPTS) -> None:
+    """The per-row int8 portable step: as close to fp32 as int8 must be (teacher-forced), and batch-invariant: the
+    greedy tokens of all prompts in one batch equal each prompt's alone, bit for bit."""
+    prompts, seeds = list(prompts), list(range(len(prompts)))
+    forced, _ = _teacher_forced(fp32, fixed, prompts, _ort_tokens(fp32, prompts, seeds, fp32.dims.max_tokens))
+    report.add("int8_fixed vs fp32 argmax agreement, teacher-forced (step, level)", forced,
+               f">= {th.int8_token_agreement:g}", forced >= th.int8_token_agreement, fmt="{:.3f}")
+    batched = _ort_tokens(fixed, prompts, seeds, fp32.dims.max_tokens)
+    alone = [_ort_tokens(fixed, [p], [s], fp32.dims.max_tokens)[0] for p, s in zip(prompts, seeds)]
+    identical = sum(np.array_equal(a, b) for a, b in zip(batched, alone))
+    report.add(f"int8_fixed greedy tokens, batch of {len(prompts)} vs one prompt per call (identical)", identical,
+               f"= {len(prompts)}", identical == len(prompts), fmt="{:.0f}")
+
+
 def check_ort_variants(bundle: Bundle, report: Report, prompts=PROMPTS) -> None:
     """Each ORT-format variant gives the greedy tokens of the variant it was converted from."""
     prompts, seeds = list(prompts), list(range(len(prompts)))
@@ -275,6 +290,8 @@ def verify(bundle_path: str | Path, ckpt_dir: str | Path, th: Thresholds = Thres
         check_endless(gen, fp32, streaming, report)
     if portable and "portable" in bundle.variants:
         check_portable(gen, open_backend(bundle, "portable", threads=2), streaming, report, th, prompts)
+    if int8 and INT8_FIXED in bundle.variants:
+        check_int8_fixed(fp32, open_backend(bundle, INT8_FIXED, threads=2), report, th, prompts)
     if bundle.manifest.ort is not None:
         check_ort_variants(bundle, report, prompts)
     return report
