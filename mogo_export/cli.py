@@ -2,6 +2,7 @@
 
     mogo-export dataset data/procedural --clips 2000
     mogo-export train --data data/procedural --out checkpoints/base --preset base
+    torchrun --standalone --nproc_per_node 2 -m mogo_export.cli train ...              # data-parallel
     mogo-export export checkpoints/base --out bundles/base
     mogo-export verify bundles/base --checkpoints checkpoints/base
     mogo-export opset bundles/base/step.portable.onnx --opset 15 -o step.opset15.onnx   # for older Unity Sentis
@@ -27,12 +28,14 @@ def _dataset(args) -> int:
 def _train(args) -> int:
     import torch
 
+    from .distributed import session
     from .train import train_all
 
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    train_all(args.data, args.out, preset=args.preset, seed=args.seed)
+    with session() as group:     # one process unless torchrun started this one (mogo_export/distributed.py)
+        train_all(args.data, args.out, preset=args.preset, seed=args.seed, group=group, loss_log=args.loss_log)
     return 0
 
 
@@ -84,7 +87,10 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(run=_dataset)
 
-    p = add_training_args(sub.add_parser("train", help="train MoSA-VQ, extract tokens, train the RQHC-Transformer"))
+    p = add_training_args(sub.add_parser("train", help="train MoSA-VQ, extract tokens, train the RQHC-Transformer "
+                                                       "(also under torchrun, on several processes or GPUs)"))
+    p.add_argument("--loss-log", type=Path, default=None,
+                   help="append one JSON line per optimiser step (phase, step, the global batch's loss) to this file")
     p.set_defaults(run=_train)
 
     p = sub.add_parser("export", help="export checkpoints to an ONNX bundle")

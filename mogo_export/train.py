@@ -8,9 +8,14 @@ resumes from its checkpoint after an interruption (a kill -9 included: files are
 says, so the folder holds only whole files); a finished phase is skipped on the next run. A resumed run ends with
 the same weights, bit for bit, as an uninterrupted one with the same torch thread count: the checkpoint holds the
 optimiser and every RNG the next steps draw from (_train_state); tests/export/test_train_kill9.py checks it.
+
+Under torchrun the same functions train data-parallel on several processes or GPUs (mogo_export/distributed.py:
+each process trains on its slice of the same global batch; rank 0 validates, prints and writes files), and a
+checkpoint does not depend on the number of processes that wrote it; tests/export/test_distributed.py checks it.
 """
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -25,6 +30,7 @@ from mogo_runtime.skeleton import get_skeleton
 from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
 from .data.dataset import MotionDataset
 from .data.timelines import read_timelines
+from .distributed import SINGLE, Group
 from .models import transformer as tmodel
 from .models import vq as vqmodel
 from .models.text_encoder import CachedTextEncoder, get_text_encoder
@@ -34,6 +40,35 @@ from .presets import DEFAULT, Schedule, get_preset  # Schedule stays importable 
 def _set_lr(opt, lr):
     for g in opt.param_groups:
         g["lr"] = lr
+
+
+def _device(opt) -> torch.device:
+    return opt.param_groups[0]["params"][0].device
+
+
+def _cpu(obj):
+    if isinstance(obj, torch.Tensor):
+        return obj.cpu()
+    if isinstance(obj, dict):
+        return {k: _cpu(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_cpu(v) for v in obj)
+    return obj
+
+
+def _on(model: torch.nn.Module, t: torch.Tensor) -> torch.Tensor:
+    """`t` on the model's device, and in its dtype if floating point: float32, unless torch's default dtype was
+    another when the model was built (tests/export/test_distributed.py trains in float64)."""
+    p = next(model.parameters())
+    return t.to(p.device, p.dtype) if t.is_floating_point() else t.to(p.device)
+
+
+def _log_step(path: Path | None, group: Group, **fields) -> None:
+    """One JSON line per optimiser step, by rank 0: the global batch's loss and metrics (`--loss-log`)."""
+    if path is not None and group.is_main:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "a") as f:
+            f.write(json.dumps(fields) + "\n")
 
 
 def _resume(path: Path, kind: str, model, opt) -> tuple[int, np.random.Generator | None, dict | None]:
@@ -46,6 +81,8 @@ def _resume(path: Path, kind: str, model, opt) -> tuple[int, np.random.Generator
     train = payload["train"]
     opt.load_state_dict(train["optimizer"])
     torch.set_rng_state(train["torch_rng"])
+    if "cuda_rng" in train and _device(opt).type == "cuda":
+        torch.cuda.set_rng_state(train["cuda_rng"], _device(opt))
     rng = np.random.default_rng()
     rng.bit_generator.state = train["numpy_rng"]
     return int(train["step"]), rng, train.get("val_rng")
@@ -57,15 +94,20 @@ def _train_state(step, opt, rng, done: bool, val_rng: np.random.Generator | None
     same torch thread count)."""
     state = {"step": step, "optimizer": opt.state_dict(), "torch_rng": torch.get_rng_state(),
              "numpy_rng": rng.bit_generator.state, "done": done}
+    if _device(opt).type == "cuda":
+        # the optimiser's state comes to the CPU, so the checkpoint loads anywhere; on a GPU the VQ's codebook
+        # seeding and resets (and dropout) draw from its own RNG
+        state["optimizer"] = _cpu(state["optimizer"])
+        state["cuda_rng"] = torch.cuda.get_rng_state(_device(opt))
     if val_rng is not None:
         state["val_rng"] = val_rng.bit_generator.state
     return state
 
 
-def _is_done(path: Path, kind: str) -> bool:
+def _is_done(path: Path, kind: str, group: Group = SINGLE) -> bool:
     """A finished checkpoint is kept as it is: training skips it (and says so)."""
     done = path.exists() and bool(read_checkpoint(path, kind)["train"].get("done"))
-    if done:
+    if done and group.is_main:
         print(f"{kind}: {path} is complete, skipping (delete it to retrain)")
     return done
 
@@ -73,12 +115,15 @@ def _is_done(path: Path, kind: str) -> bool:
 # -----------------------------------------------------------------------------
 # MoSA-VQ
 
-def _crops(clips: list[np.ndarray], rng, batch: int, window: int) -> torch.Tensor:
-    out = np.empty((batch, window, clips[0].shape[1]), np.float32)
+def _crops(clips: list[np.ndarray], rng, batch: int, window: int, rows: slice = slice(None)) -> torch.Tensor:
+    """`batch` random crops are drawn; -> those of `rows` (a process's slice of the global batch)."""
+    keep = range(batch)[rows]
+    out = np.empty((len(keep), window, clips[0].shape[1]), np.float32)
     for i, c in enumerate(rng.integers(len(clips), size=batch)):
         clip = clips[c]
         start = rng.integers(len(clip) - window + 1)
-        out[i] = clip[start:start + window]
+        if i in keep:
+            out[i - keep.start] = clip[start:start + window]
     return torch.from_numpy(out)
 
 
@@ -90,8 +135,8 @@ def evaluate_vq(vq: vqmodel.MoSAVQ, clips: list[np.ndarray], mean: np.ndarray, s
     ds, errs, l1 = vq.cfg.downsample, [], []
     for clip in clips:
         T = len(clip) // ds * ds
-        x = torch.from_numpy(clip[None, :T])
-        recon = vq.decode_indices(vq.encode(x))[0].numpy()
+        x = _on(vq, torch.from_numpy(clip[None, :T]))
+        recon = vq.decode_indices(vq.encode(x))[0].cpu().numpy()
         l1.append(np.abs(recon - clip[:T]).mean())
         gt = recover_from_ric(clip[:T] * std + mean, num_joints)
         pred = recover_from_ric(recon * std + mean, num_joints)
@@ -100,13 +145,17 @@ def evaluate_vq(vq: vqmodel.MoSAVQ, clips: list[np.ndarray], mean: np.ndarray, s
 
 
 def train_vq(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progress: bool = True,
-             schedule: Schedule | None = None, **overrides) -> Path:
-    """`preset`: a name in mogo_export.presets; `schedule` and `overrides` (VQConfig fields) replace its values."""
+             schedule: Schedule | None = None, group: Group = SINGLE, loss_log: Path | None = None,
+             **overrides) -> Path:
+    """`preset`: a name in mogo_export.presets; `schedule` and `overrides` (VQConfig fields) replace its values.
+    `group`: this process's place in a torchrun run (mogo_export.distributed); `loss_log`: a JSON-lines file that
+    each step's loss is appended to."""
     path = out / "vq.pt"
-    if _is_done(path, "vq"):
+    if _is_done(path, "vq", group):
         return path
     pset = get_preset(preset)
     sched = schedule or pset.vq_schedule
+    rows = group.shard(sched.batch_size, "vq batch")
     train_ds, val_ds = MotionDataset.load(data, "train"), MotionDataset.load(data, "val")
     num_joints = get_skeleton(train_ds.skeleton).num_joints
     cfg = pset.vq_config(input_dim=int(train_ds.mean.shape[0]), **overrides)
@@ -117,33 +166,42 @@ def train_vq(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progre
         raise ValueError(f"{data}: no training clip has {sched.window} frames or more")
 
     torch.manual_seed(seed)
-    vq = vqmodel.MoSAVQ(cfg)
+    vq = vqmodel.MoSAVQ(cfg).to(group.device)
     opt = torch.optim.AdamW(vq.parameters(), lr=sched.lr, betas=(0.9, 0.99), weight_decay=0.0)
     start, rng, _ = _resume(path, "vq", vq, opt)      # VQ validation uses whole clips: no RNG
     rng = rng or np.random.default_rng(seed)
+    vq.quantizer.sync = group if group.world > 1 else None
+    net = group.wrap(vq)
     # the fields checkpoint.load_trained requires (checkpoint.VQ_META), plus the run's own record
     meta = {"mean": mean.tolist(), "std": std.tolist(), "fps": train_ds.fps, "dataset": str(data), "preset": preset,
             "skeleton": train_ds.skeleton}
-    bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc="vq", disable=not progress)
+    bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc="vq",
+               disable=not (progress and group.is_main))
     t0, frames = time.perf_counter(), 0
     for step in bar:
-        vq.train()
+        net.train()
         _set_lr(opt, sched.lr_at(step))
-        x = _crops(clips, rng, sched.batch_size, sched.window)
-        _, terms = vq(x)
+        x = _on(vq, _crops(clips, rng, sched.batch_size, sched.window, rows))
+        _, terms = net(x)
         opt.zero_grad(set_to_none=True)
+        # each process's loss is the mean over its slice, and the slices are the same size: the gradients that
+        # DistributedDataParallel averages are those of the global batch's mean
         terms["loss"].backward()
         torch.nn.utils.clip_grad_norm_(vq.parameters(), 1.0)
         opt.step()
-        frames += x.shape[0] * x.shape[1]
-        bar.set_postfix(loss=f"{terms['loss'].item():.4f}", rec=f"{terms['recon'].item():.4f}",
-                        ppl=f"{terms['perplexity'].mean().item():.0f}", fps=f"{frames / (time.perf_counter() - t0):.0f}")
+        frames += sched.batch_size * x.shape[1]
+        loss, rec = group.mean(torch.stack([terms["loss"].detach(), terms["recon"]])).tolist()
+        _log_step(loss_log, group, phase="vq", step=step + 1, loss=loss, recon=rec)
+        bar.set_postfix(loss=f"{loss:.4f}", rec=f"{rec:.4f}", ppl=f"{terms['perplexity'].mean().item():.0f}",
+                        fps=f"{frames / (time.perf_counter() - t0):.0f}")
         last = step + 1 == sched.steps
-        if (step + 1) % sched.val_every == 0 or last:
+        if group.is_main and ((step + 1) % sched.val_every == 0 or last):
             meta["val"] = evaluate_vq(vq, val_clips, mean, std, num_joints)
             bar.write(f"vq step {step + 1}: val MPJPE {meta['val']['mpjpe_mm']:.1f} mm, L1 {meta['val']['l1']:.4f}")
         if (step + 1) % sched.ckpt_every == 0 or last:
-            save_checkpoint(path, "vq", cfg, vq, _train_state(step + 1, opt, rng, last), meta)
+            if group.is_main:    # every process holds the same weights, optimiser and RNG states
+                save_checkpoint(path, "vq", cfg, vq, _train_state(step + 1, opt, rng, last), meta)
+            group.barrier()      # nobody reads or resumes from a checkpoint still being written
     return path
 
 
@@ -151,7 +209,7 @@ def train_vq(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progre
 # tokens and captions
 
 @torch.no_grad()
-def extract_tokens(data: Path, out: Path, progress: bool = True) -> Path:
+def extract_tokens(data: Path, out: Path, progress: bool = True, device: torch.device | None = None) -> Path:
     """Run the trained VQ over every clip of every split once; the transformer trains on these."""
     path = out / "tokens.npz"
     vq, cfg, payload = build_from_checkpoint(out / "vq.pt", "vq", vqmodel.VQConfig, vqmodel.MoSAVQ)
@@ -159,6 +217,7 @@ def extract_tokens(data: Path, out: Path, progress: bool = True) -> Path:
         with np.load(path) as z:
             if str(z["vq_step"]) == str(payload["train"]["step"]):
                 return path
+    vq.to(device or torch.device("cpu"))
     arrays = {}
     for split in ("train", "val", "test"):
         ds = MotionDataset.load(data, split)
@@ -166,14 +225,15 @@ def extract_tokens(data: Path, out: Path, progress: bool = True) -> Path:
         items = [(f"{split}/{it.clip_id}", it.features) for it in ds.items] + whole
         for key, features in tqdm(items, desc=f"tokens {split}", disable=not progress):
             T = len(features) // cfg.downsample * cfg.downsample
-            x = torch.from_numpy(ds.normalize(features[:T]))[None]
-            arrays[key] = vq.encode(x)[0].numpy().astype(np.int16)
+            x = _on(vq, torch.from_numpy(ds.normalize(features[:T]))[None])
+            arrays[key] = vq.encode(x)[0].cpu().numpy().astype(np.int16)
     # a file object, so np.savez does not append ".npz" to the temporary name
     return write_atomic(path, lambda f: np.savez(f, vq_step=np.array(payload["train"]["step"]), **arrays))
 
 
-def _caption_table(data: Path, out: Path, encoder_name: str):
-    """All captions of all splits embedded once, cached on disk."""
+def _caption_table(data: Path, out: Path, encoder_name: str, write: bool = True):
+    """All captions of all splits embedded once, cached on disk. `write=False`: for a process that finds every
+    caption cached by rank 0 and must leave the file alone."""
     encoder = CachedTextEncoder(get_text_encoder(encoder_name), out / "captions.npz")
     table = {}
     for split in ("train", "val", "test"):
@@ -181,7 +241,8 @@ def _caption_table(data: Path, out: Path, encoder_name: str):
             table[(split, it.clip_id)] = it.captions
     flat = sorted({c for caps in table.values() for c in caps})
     emb = dict(zip(flat, encoder.encode(flat).numpy()))
-    encoder.save()
+    if write:
+        encoder.save()
     return table, emb, encoder.dim
 
 
@@ -241,20 +302,37 @@ def _token_units(timeline, tokens: np.ndarray, downsample: int):
     return tokens, [(a, b, c) for a, b, c in segs if a < b]
 
 
+class _BatchLosses(torch.nn.Module):
+    """The model's loss on each batch of a step in one forward call: DistributedDataParallel reduces the
+    gradients of what one forward computed."""
+
+    def __init__(self, model: tmodel.RQHCTransformer):
+        super().__init__()
+        self.model = model
+
+    def forward(self, batches):
+        return [self.model.loss(*b) for b in batches]
+
+
 def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progress: bool = True,
-                      schedule: Schedule | None = None, text_encoder: str | None = None, **overrides) -> Path:
+                      schedule: Schedule | None = None, text_encoder: str | None = None, group: Group = SINGLE,
+                      loss_log: Path | None = None, **overrides) -> Path:
     """`preset`: a name in mogo_export.presets; `schedule`, `text_encoder` and `overrides` (TransformerConfig
-    fields) replace its values. Levels, codes and text_dim always come from the trained VQ and the encoder."""
+    fields) replace its values. Levels, codes and text_dim always come from the trained VQ and the encoder.
+    `group` and `loss_log` as in train_vq."""
     path = out / "transformer.pt"
-    if _is_done(path, "transformer"):
+    if _is_done(path, "transformer", group):
         return path
     pset = get_preset(preset)
     sched = schedule or pset.transformer_schedule
+    rows = group.shard(sched.batch_size, "transformer batch")
     text_encoder = text_encoder or pset.text_encoder
     vq_payload = read_checkpoint(out / "vq.pt", "vq")
     vq_cfg = vq_payload["config"]
-    table, emb, text_dim = _caption_table(data, out, text_encoder)
-    with np.load(extract_tokens(data, out, progress)) as z:
+    with group.main_first():     # rank 0 embeds and extracts; the others read its files
+        table, emb, text_dim = _caption_table(data, out, text_encoder, write=group.is_main)
+        tokens_path = extract_tokens(data, out, progress and group.is_main, group.device)
+    with np.load(tokens_path) as z:
         tokens = {k: z[k].astype(np.int64) for k in z.files if "/" in k}
 
     def split(name):
@@ -268,12 +346,14 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
                  for t in read_timelines(data, "train")]
     timelines = [t for t in timelines if t[1]]
     n_window = streaming.windows if timelines else 0
+    # the loss weighs each slice by its targets, so slices of windows need not be the same size
+    window_rows = group.part(n_window)
     by_length = np.argsort([len(q) for q in seqs], kind="stable")
     max_tokens = max(len(s) for s in seqs)
     cfg = pset.transformer_config(num_levels=vq_cfg["num_levels"], codebook_size=vq_cfg["codebook_size"],
                                   text_dim=text_dim, **overrides)
     torch.manual_seed(seed)
-    model = tmodel.RQHCTransformer(cfg)
+    model = tmodel.RQHCTransformer(cfg).to(group.device)
     decay = [p for n, p in model.named_parameters() if p.dim() >= 2]
     no_decay = [p for n, p in model.named_parameters() if p.dim() < 2]
     opt = torch.optim.AdamW([{"params": decay, "weight_decay": 0.01}, {"params": no_decay, "weight_decay": 0.0}],
@@ -283,51 +363,71 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
     val_rng = np.random.default_rng(seed + 1)
     if val_state is not None:      # else a fresh one: an old checkpoint resumes, its later val metrics differ
         val_rng.bit_generator.state = val_state
+    group.fork_torch_rng(seed, start)
+    net = group.wrap(_BatchLosses(model))
     # the fields checkpoint.load_trained requires (checkpoint.TRANSFORMER_META), plus the run's own record
     meta = {"text_encoder": text_encoder, "max_tokens": int(max_tokens * 1.25) + 1, "dataset": str(data),
             "preset": preset, "vq_step": vq_payload["train"]["step"],
             # trained for endless streams only when the data has timelines to learn prompt switches from
             **({"streaming": {"window": streaming.window, "refresh": streaming.refresh}} if n_window else {})}
-    bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc="transformer", disable=not progress)
+    bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc="transformer",
+               disable=not (progress and group.is_main))
     t0, ntok = time.perf_counter(), 0
     for step in bar:
-        model.train()
+        net.train()
         _set_lr(opt, sched.lr_at(step))
-        # clips and streaming windows as two batches: each is padded to its own longest example only
-        batches = [_pad(_clip_examples(seqs, caps, emb, rng, sched.batch_size, cfg, by_length), cfg)]
+        # clips and streaming windows as two batches: each is padded to its own longest example only (of this
+        # process's slice)
+        batches = [_pad(_clip_examples(seqs, caps, emb, rng, sched.batch_size, cfg, by_length)[rows], cfg)]
         if n_window:
-            batches.append(_pad(_window_examples(timelines, emb, rng, n_window, cfg, streaming), cfg))
-        parts = [model.loss(*b) for b in batches]
-        count = sum(st["count"] for _, st in parts)
-        loss = sum(part * st["count"] for part, st in parts) / count          # the mean over every target
-        stats = {"acc": sum(st["acc"] * st["count"] for _, st in parts) / count}
+            windows = _window_examples(timelines, emb, rng, n_window, cfg, streaming)[window_rows]
+            if windows:
+                batches.append(_pad(windows, cfg))
+        batches = [tuple(_on(model, t) for t in b) for b in batches]
+        parts = net(batches)
+        # the mean over every target of the global batch (of this process's slice: its share of that mean)
+        count = group.sum(sum(st["count"] for _, st in parts))
+        loss = sum(part * st["count"] for part, st in parts) / count
+        stats = {"acc": group.sum(sum(st["acc"] * st["count"] for _, st in parts)) / count}
         lengths = torch.cat([b[3] for b in batches])
         opt.zero_grad(set_to_none=True)
-        loss.backward()
+        # slices hold different numbers of targets: DistributedDataParallel averages the gradients of the shares,
+        # so world x share makes that average the gradient of the global mean
+        (loss * group.world if group.world > 1 else loss).backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
         opt.step()
-        ntok += int((lengths + 1).sum()) * cfg.num_levels
-        bar.set_postfix(loss=f"{loss.item():.3f}", acc=f"{stats['acc'].item():.3f}",
-                        tok_s=f"{ntok / (time.perf_counter() - t0):.0f}")
+        ntok += int((lengths + 1).sum()) * cfg.num_levels * group.world      # for the bar: an estimate
+        shown = group.sum(loss.detach()).item(), stats["acc"].item()
+        _log_step(loss_log, group, phase="transformer", step=step + 1, loss=shown[0], acc=shown[1])
+        bar.set_postfix(loss=f"{shown[0]:.3f}", acc=f"{shown[1]:.3f}", tok_s=f"{ntok / (time.perf_counter() - t0):.0f}")
         last = step + 1 == sched.steps
-        if ((step + 1) % sched.val_every == 0 or last) and val_seqs:
+        if group.is_main and ((step + 1) % sched.val_every == 0 or last) and val_seqs:
             model.eval()
             with torch.no_grad():
-                vloss, vstats = model.loss(*_pad(_clip_examples(val_seqs, val_caps, emb, val_rng, 64, cfg), cfg))
+                val_batch = _pad(_clip_examples(val_seqs, val_caps, emb, val_rng, 64, cfg), cfg)
+                vloss, vstats = model.loss(*(_on(model, t) for t in val_batch))
             meta["val"] = {"loss": vloss.item(), "acc": vstats["acc"].item()}
             bar.write(f"transformer step {step + 1}: val loss {vloss.item():.3f}, acc {vstats['acc'].item():.3f}")
         if (step + 1) % sched.ckpt_every == 0 or last:
-            save_checkpoint(path, "transformer", cfg, model, _train_state(step + 1, opt, rng, last, val_rng), meta)
+            if group.is_main:
+                save_checkpoint(path, "transformer", cfg, model, _train_state(step + 1, opt, rng, last, val_rng),
+                                meta)
+            group.barrier()
     return path
 
 
-def train_all(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progress: bool = True) -> Path:
-    get_preset(preset)  # an unknown name fails here, before any work
+def train_all(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progress: bool = True,
+              group: Group = SINGLE, loss_log: Path | None = None) -> Path:
+    pset = get_preset(preset)  # an unknown name fails here, before any work, and so does a batch of another size
+    for what, sched in (("vq", pset.vq_schedule), ("transformer", pset.transformer_schedule)):
+        group.shard(sched.batch_size, f"preset {preset!r}, {what}")
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    train_vq(data, out, preset, seed, progress)
+    train_vq(data, out, preset, seed, progress, group=group, loss_log=loss_log)
     t1 = time.perf_counter()
-    train_transformer(data, out, preset, seed, progress)
+    train_transformer(data, out, preset, seed, progress, group=group, loss_log=loss_log)
     t2 = time.perf_counter()
-    print(f"trained {preset} in {out}: vq {t1 - t0:.0f} s, transformer {t2 - t1:.0f} s")
+    if group.is_main:
+        print(f"trained {preset} in {out}: vq {t1 - t0:.0f} s, transformer {t2 - t1:.0f} s"
+              + (f" on {group.world} processes ({group.device.type})" if group.world > 1 else ""))
     return out

@@ -40,8 +40,6 @@ from mogo_runtime.skeleton import get_skeleton
 from .. import __version__
 from ..checkpoint import load_trained, model_dims
 from ..models.text_encoder import get_text_encoder
-from ..models.transformer import RQHCTransformer
-from ..models.vq import MoSAVQ
 from .caption_index import build_caption_index, tca_manifest_section
 from .graphs import DEFAULT_OPSET, export_decoder, export_lookup, export_step
 from .opset import portable_problems

@@ -13,6 +13,7 @@ and, as MatMulInteger takes only one activation zero point, the zero point leave
 q·W = sum_k (q_k - zp) W_k + zp · colsum(W), so each MatMulInteger runs without it and subtracts zp · colsum(W)
 (int32, a constant per weight). Everything else in the graph (weights, their per-channel scales, the Cast and
 scale Muls after each product) is the quantizer's. Rounding is ONNX Round (half to even), as DynamicQuantizeLinear.
+A manifest names such graphs' method mogo_runtime.manifest.PER_ROW_INT8.
 """
 from __future__ import annotations
 
@@ -22,7 +23,6 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from mogo_runtime.manifest import PER_ROW_INT8  # noqa: F401  (the method a manifest names for these graphs)
 
 
 def quantize_per_row(model: onnx.ModelProto) -> onnx.ModelProto:

@@ -189,6 +189,10 @@ class ResidualQuantizer(nn.Module):
         self.register_buffer("ema_sum", self.codebook.clone())      # EMA of the sum of those vectors
         self.register_buffer("initted", torch.zeros(L, dtype=torch.bool))  # codebook seeded from data yet
         self.register_buffer("level_offset", torch.arange(L) * K)  # (L,) row of code 0 of each level
+        # Under DistributedDataParallel each process holds a slice of the batch; mogo_export.distributed sets
+        # this to its Group, whose sum() and cat() make the codebook updates see the whole batch, identically
+        # on every process (the same counts, sums and reset vectors as one process). None: one process.
+        self.sync = None
 
     # --- the affine map of eq. 1 and its inverse, eq. 3; `levels` selects rows of s and b
     def _scaled(self, r, levels: slice):  # r (..., n, d) residual space -> scaled space
@@ -217,10 +221,14 @@ class ResidualQuantizer(nn.Module):
         dist = x.pow(2).sum(-1, keepdim=True) - 2 * x @ C.t() + C.pow(2).sum(-1)  # (N, K)
         return dist.argmin(dim=-1)  # (N,)
 
+    def _whole(self, x):  # x (N, d) this process's rows -> the whole batch's rows, in one process's order
+        return x if self.sync is None else self.sync.cat(x)
+
     @torch.no_grad()
     def _seed(self, x, level: int):  # codebook of `level` <- random rows of x (N, d), with replacement
         K = self.cfg.codebook_size
         rows = slice(level * K, (level + 1) * K)
+        x = self._whole(x)
         self.codebook[rows] = x[torch.randint(0, x.shape[0], (K,), device=x.device)]
         self.ema_sum[rows] = self.codebook[rows].clone()
         self.ema_count[rows] = 1.0
@@ -232,9 +240,11 @@ class ResidualQuantizer(nn.Module):
         K, decay = cfg.codebook_size, cfg.ema_decay
         rows = slice(level * K, (level + 1) * K)
         onehot = F.one_hot(idx, K).type_as(x)  # (N, K)
-        used = onehot.sum(0)  # (K,)
+        used, added = onehot.sum(0), (1 - decay) * onehot.t() @ x  # (K,), (K, d)
+        if self.sync is not None:
+            used, added = self.sync.sum(used), self.sync.sum(added)
         self.ema_count[rows] = decay * self.ema_count[rows] + (1 - decay) * used
-        self.ema_sum[rows] = decay * self.ema_sum[rows] + (1 - decay) * onehot.t() @ x
+        self.ema_sum[rows] = decay * self.ema_sum[rows] + added
         count = self.ema_count[rows]
         # Laplace smoothing keeps rarely used codes from dividing by ~0
         n = count.sum()
@@ -247,6 +257,7 @@ class ResidualQuantizer(nn.Module):
         dead = (count < floor) & (used == 0)  # (K,)
         n_dead = int(dead.sum())
         if n_dead:
+            x = self._whole(x)
             fresh = x[torch.randint(0, x.shape[0], (n_dead,), device=x.device)]  # (n_dead, d)
             self.codebook[rows][dead] = fresh  # basic slicing gives views, so these write the buffers
             self.ema_sum[rows][dead] = fresh * floor
@@ -295,6 +306,8 @@ class ResidualQuantizer(nn.Module):
             reg = z.new_zeros(())
         with torch.no_grad():
             counts = F.one_hot(indices, K).sum(dim=(0, 1)).float()  # (n_active, K)
+            if self.training and self.sync is not None:
+                counts = self.sync.sum(counts)  # statistics of the whole batch
             p = counts / counts.sum(-1, keepdim=True)
             perplexity = torch.exp(-(p * torch.log(p.clamp_min(1e-10))).sum(-1))  # (n_active,)
             usage = (counts > 0).float().mean(-1)  # (n_active,)
