@@ -27,6 +27,8 @@ from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from .bundle import GRAPHS, Bundle, BundleError
 from .manifest import SCHEMA_VERSION
 from .sampling import SamplingConfig
@@ -58,6 +60,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="mogo", description="Text to 3D human motion with a mogo bundle (onnxruntime, no torch).")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
 
+    def add_sampling_args(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--temperature", type=float, help="0 = greedy; default: the bundle's")
+        p.add_argument("--top-k", type=int, help="keep the k likeliest codes, 0 = all; default: the bundle's")
+        p.add_argument("--top-p", type=float, help="nucleus sampling mass in (0, 1]; default: the bundle's")
+        p.add_argument("--guidance", type=float, help="classifier-free guidance scale, 1 = off; default: the bundle's")
+        p.add_argument("--threads", type=int, default=1,
+                       help="onnxruntime threads (default 1: fastest per step on a busy machine)")
+
     def add_generation_args(p: argparse.ArgumentParser) -> None:
         p.add_argument("text", help="what the person does, e.g. \"a person walks forward and then jumps\"")
         p.add_argument("--bundle", type=Path, help=f"bundle folder (default: $MOGO_BUNDLE or {DEFAULT_BUNDLE})")
@@ -67,12 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
         v.add_argument("--int8", action="store_const", const="int8", dest="variant",
                        help="use the bundle's int8 graphs (faster on CPU)")
         v.add_argument("--variant", dest="variant", help="bundle variant by name (default fp32)")
-        p.add_argument("--temperature", type=float, help="0 = greedy; default: the bundle's")
-        p.add_argument("--top-k", type=int, help="keep the k likeliest codes, 0 = all; default: the bundle's")
-        p.add_argument("--top-p", type=float, help="nucleus sampling mass in (0, 1]; default: the bundle's")
-        p.add_argument("--guidance", type=float, help="classifier-free guidance scale, 1 = off; default: the bundle's")
-        p.add_argument("--threads", type=int, default=1,
-                       help="onnxruntime threads (default 1: fastest per step on a busy machine)")
+        add_sampling_args(p)
         p.add_argument("--align", action=argparse.BooleanOptionalAction, default=None,
                        help="rewrite the prompt into the training captions' style first (TCA; default: off)")
         p.add_argument("--rewriter-url", metavar="URL",
@@ -103,6 +108,25 @@ def build_parser() -> argparse.ArgumentParser:
                              '{"event": "prompt", ...} line marks each switch (needs a bundle trained for endless '
                              "streams)")
     stream.set_defaults(run=cmd_stream)
+
+    crowd = sub.add_parser("crowd", help="many characters at once, stepped together: a motion file each",
+                           description="Run N characters in one loop, each with its own prompt and seed, one batched "
+                                       "step per tick, and write character i's motion to OUT/character_<i>.<format>. "
+                                       "Each motion is, bit for bit, what `mogo stream` gives that prompt and seed on the "
+                                       "same variant (and `mogo generate`'s to float rounding). Needs a "
+                                       "fixed-capacity variant: portable or int8_fixed.")
+    crowd.add_argument("text", nargs="+", help="prompts, handed to the characters in turn")
+    crowd.add_argument("-n", "--characters", type=int, help="how many characters (default: one per prompt)")
+    crowd.add_argument("--seconds", type=float, required=True, help="length of every motion")
+    crowd.add_argument("--seed", type=int, default=0, help="character i gets seed + i (default 0)")
+    crowd.add_argument("--bundle", type=Path, help=f"bundle folder (default: $MOGO_BUNDLE or {DEFAULT_BUNDLE})")
+    crowd.add_argument("--variant", default="int8_fixed", help="portable or int8_fixed (default)")
+    add_sampling_args(crowd)
+    crowd.add_argument("-o", "--out", type=Path, required=True, metavar="DIR", help="folder for the motion files")
+    crowd.add_argument("--format", default="bvh", choices=[s.lstrip(".") for s in SAVE_FORMATS if s != ".mp4"],
+                       help="file format of every motion (default bvh)")
+    crowd.add_argument("--rig", metavar="RIG", help="with --format glb or bvh: a game rig (see `mogo rigs`)")
+    crowd.set_defaults(run=cmd_crowd, align=False, rewriter_url=None, rewriter_model=None)
 
     rigs = sub.add_parser("rigs", help="the game rigs --rig knows, and how to add your own",
                           description="The rigs shipped with mogo (for --rig); a rig file of your own works the same.")
@@ -211,6 +235,53 @@ def cmd_generate(args) -> int:
     for out in args.output:
         on_rig = out.suffix.lower() in RIG_FORMATS and (rig or args.in_place)
         print(f"wrote {motion.save(out, rig=rig, in_place=args.in_place) if on_rig else motion.save(out)}")
+    return 0
+
+
+def cmd_crowd(args) -> int:
+    from .crowd import Crowd
+    from .motion import Motion
+
+    check_texts(args.text)
+    count = len(args.text) if args.characters is None else args.characters
+    if isinstance(count, bool) or not 1 <= count <= 100_000:
+        raise UsageError(f"--characters must be between 1 and 100000, got {count}")
+    rig = load_rig(args.rig) if args.rig else None
+    suffix = "." + args.format
+    if rig and suffix not in RIG_FORMATS:
+        raise UsageError(f"--rig applies to {' and '.join(RIG_FORMATS)} files, not {suffix}")
+    paths = [args.out / f"character_{i:0{len(str(count - 1))}d}{suffix}" for i in range(count)]
+    check_output_path(paths[0])
+    gen = _load_generator(args)
+    crowd = Crowd(gen, sampling=_sampling(args, gen.sampling_defaults))
+    start = time.perf_counter()
+    members = [crowd.add(args.text[i % len(args.text)], seed=args.seed + i, seconds=args.seconds)
+               for i in range(count)]
+    added = time.perf_counter()
+    parts = {c: ([], [], []) for c in members}
+    ticks = 0
+    while crowd:
+        for c, frames in crowd.tick().items():
+            parts[c][0].append(frames.features)
+            parts[c][1].append(frames.joints)
+        for c in members:
+            if len(parts[c][2]) < c.count:
+                parts[c][2].append(c.last.copy())
+        ticks += 1
+        if sys.stderr.isatty():
+            print(f"\rmogo: crowd of {count}, tick {ticks}", end="", file=sys.stderr, flush=True)
+    took = time.perf_counter() - added
+    if sys.stderr.isatty():
+        print(file=sys.stderr)
+    seconds = len(parts[members[0]][1][0]) and sum(len(j) for j in parts[members[0]][1]) / gen.dims.fps
+    print(f"mogo: {count} characters x {seconds:.2f} s of motion in {took:.2f} s ({ticks} ticks, "
+          f"{count * seconds / took:.0f} character-seconds per second; prompts encoded in {added - start:.2f} s) "
+          f"[{gen.variant}]", file=sys.stderr)
+    for c, path in zip(members, paths):
+        features, joints, tokens = parts[c]
+        motion = Motion(text=c.text, features=np.concatenate(features), joints=np.concatenate(joints),
+                        fps=gen.dims.fps, tokens=np.stack(tokens), skeleton=gen.skeleton, seed=c.seed)
+        print(f"wrote {motion.save(path, rig=rig) if rig else motion.save(path)}")
     return 0
 
 

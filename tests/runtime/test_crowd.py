@@ -123,3 +123,21 @@ def test_bad_arguments_are_refused(gen):
     with pytest.raises(ValueError, match="not in this crowd"):
         crowd.remove(other)
     assert crowd.tick() == {} and len(crowd) == 0
+
+
+def test_mogo_crowd_writes_each_characters_lone_stream(portable_toy_bundle, tmp_path, capsys):  # noqa: F811
+    from mogo_runtime.cli import main
+
+    args = ["crowd", PROMPTS[0], PROMPTS[1], "-n", "3", "--seconds", "2", "--seed", "5", "--bundle",
+            str(portable_toy_bundle), "-o", str(tmp_path), "--format", "npy"]
+    assert main(args) == 0
+    assert "3 characters x 2.00 s" in capsys.readouterr().err
+    gen = MotionGenerator(portable_toy_bundle, variant="int8_fixed")
+    for i in range(3):
+        alone = np.stack([f.joints for f in gen.stream(PROMPTS[i % 2], seed=5 + i, seconds=2)])
+        assert np.array_equal(np.load(tmp_path / f"character_{i}.npy"), alone), i
+    for bad, message in ((["--rig", "mixamo"], "--rig applies"), (["--variant", "fp32"], "fixed-capacity"),
+                         (["-n", "0"], "--characters")):
+        assert main(args + bad) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("mogo: error:") and message in err and err.count("\n") == 1, err
