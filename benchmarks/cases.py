@@ -9,6 +9,7 @@ Cases (each prints one JSON object as its last stdout line with --json):
   cold    a fresh process: import mogo_runtime + load the bundle + build MotionGenerator, then the first frame
   soak    one endless stream for --duration seconds of wall time, flat out, switching prompts every few seconds of
           stream time: RSS and time per token at the end of every --interval (memory or time that creeps up)
+  crowd, crowd_soak   many characters in one loop (benchmarks/crowd.py)
 
 The orchestrator (`benchmarks.run`) sets OMP/OPENBLAS/MKL_NUM_THREADS for each process. Only `torch` imports
 torch, so the other processes' RSS is the runtime's alone.
@@ -400,8 +401,10 @@ def case_soak(args) -> dict:
     return out
 
 
+from .crowd import case_crowd, case_crowd_soak  # noqa: E402  (they use the helpers above)
+
 CASES = {"floor": case_floor, "step": case_step, "e2e": case_e2e, "torch": case_torch, "cold": case_cold,
-         "soak": case_soak}
+         "soak": case_soak, "crowd": case_crowd, "crowd_soak": case_crowd_soak}
 
 
 def main(argv=None) -> int:
@@ -423,6 +426,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="e2e/torch: first seed (repeat i uses seed + i); soak: its seed")
     ap.add_argument("--duration", type=float, default=600.0, help="soak: seconds of wall time")
     ap.add_argument("--interval", type=float, default=60.0, help="soak: seconds between measurements")
+    ap.add_argument("--sizes", type=lambda s: [int(x) for x in s.split(",") if x],
+                    default=[1, 16, 64, 128, 192, 256, 384, 512], help="crowd: the crowd sizes tried, in order")
+    ap.add_argument("--chunk", type=int, default=1, help="crowd, crowd_soak: tokens per decode after the first")
+    ap.add_argument("--crowd-seconds", type=float, default=10.0, help="crowd: seconds of motion per character")
+    ap.add_argument("--characters", type=int, default=64, help="crowd_soak: characters")
     ap.add_argument("--json", action="store_true", help="print the result as one JSON line")
     args = ap.parse_args(argv)
     result = {"case": args.case, **CASES[args.case](args)}

@@ -26,7 +26,8 @@ def test_benchmark_runs_and_reports(tiny_bundle, tiny_checkpoints, tmp_path):
 
     goals = {g["key"]: g for g in summary["goals"]}
     assert set(goals) == {"rtf_int8_t1", "ttff_int8_t1", "int8_over_fp32_step", "ort_over_torch",
-                          "kv_over_recompute", "step_over_floor", "step_over_cache_floor", "peak_rss", "cold_start"}
+                          "kv_over_recompute", "step_over_floor", "step_over_cache_floor", "peak_rss", "cold_start",
+                          "stream_over_generate", "crowd_int8", "crowd_soak"}
     for g in goals.values():
         assert isinstance(g["value"], (int, float)) and g["value"] > 0, g
         assert isinstance(g["met"], bool), g
@@ -45,13 +46,19 @@ def test_benchmark_runs_and_reports(tiny_bundle, tiny_checkpoints, tmp_path):
     assert e2e[("onnxruntime", "int8", True)]["stream_first_frame"]["median"] > 0
 
     assert set(summary["cold_start"]) == {"fp32", "int8"}
+    crowds = {c["variant"]: c for c in summary["crowds"]}
+    assert set(crowds) == {"int8_fixed", "portable"}
+    for c in crowds.values():
+        assert [r["n"] for r in c["rows"]] == [1, 8] and all(r["character_token_ms"] > 0 for r in c["rows"])
+    assert summary["crowd_soak"]["tokens"] > 0 and summary["crowd_soak"]["rows"]
     assert summary["cold_start"]["int8"]["import_and_load"]["median"] > 0
     assert set(summary["bundle_bytes"]) == set(json.loads((tiny_bundle / "manifest.json").read_text())["variants"])
     assert summary["floor"]["1"]["copy_dram_gbs"]["median"] > 0       # JSON keys are strings
 
     md = (out / "latest.md").read_text()
-    for heading in ("## Goals (issue 6)", "## Step graph latency", "## End to end", "## Cold start",
-                    "## Bundle size per variant", "## Machine"):
+    for heading in ("## Goals (issues 6 and 18)", "## Step graph latency", "## End to end", "## Cold start",
+                    "## Bundle size per variant", "## Machine", "## Crowds: int8_fixed", "## Crowds: portable",
+                    "## Crowd soak: 64 characters"):
         assert heading in md
     for g in goals.values():
         assert g["measure"] in md
