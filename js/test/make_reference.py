@@ -311,7 +311,7 @@ def main(argv=None) -> int:
         return 0
     for name, path in bundles.items():
         manifest = json.loads((Path(path) / "manifest.json").read_text())
-        variants = [v for v in ("fp32", "int8", "portable") if v in manifest["variants"]]
+        variants = [v for v in ("fp32", "int8", "portable", "int8_fixed") if v in manifest["variants"]]
         ref = {"name": name, "path": str(Path(path).resolve()),
                "variants": {v: bundle_reference(Path(path), v, args.long_seconds) for v in variants}}
         target = args.out / f"bundle-{name}.json"

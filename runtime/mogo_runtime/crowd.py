@@ -59,6 +59,7 @@ class Character:
     def __init__(self, crowd: "Crowd", ident: int, text: str, emb: np.ndarray, seed: int, limit: int | None):
         dims = crowd.dims
         self.crowd, self.id, self.text, self.seed, self.limit = crowd, ident, text, seed, limit
+        self.slot: int | None = None        # its place in the crowd (rows slot * per ...), None once removed
         self.rng = make_rngs([seed])[0]
         self._condition(emb)
         span = crowd.window + crowd.refresh
@@ -126,9 +127,11 @@ class Crowd:
         self.per_character = 2 if self.guided else 1        # rows: the prompt, and the unconditional branch
         self.num_joints = (self.dims.feature_dim + 1) // 12
         self.decode_window = self.dims.receptive_field + self.chunk
-        self.characters: list[Character] = []             # slot i owns cache rows [i * per, (i + 1) * per)
+        self.characters: list[Character] = []             # characters[i].slot == i owns rows [i * per, (i + 1) * per)
+        # the cache of every row, allocated for more characters than there are (doubling as they come), so adding
+        # one copies nothing; the rows in use are the first len(characters) * per
         cache_shape = (0, fixed.cache_heads, fixed.capacity, self.dims.head_dim)
-        self.cache = [np.zeros(cache_shape, np.float32) for _ in fixed.past_names]
+        self._cache = [np.zeros(cache_shape, np.float32) for _ in fixed.past_names]
         self._spare = [np.zeros(cache_shape, np.float32) for _ in fixed.past_names]
         self._next_id = 0
 
@@ -144,24 +147,36 @@ class Crowd:
         emb = self.backend.encode_text(check_texts([text]))       # one prompt per call: padding never mixes
         character = Character(self, self._next_id, text, emb, seed, limit)
         self._next_id += 1
-        rows = np.zeros((self.per_character,) + self.cache[0].shape[1:], np.float32)
-        self.cache = [np.concatenate([c, rows]) for c in self.cache]
+        rows = (len(self.characters) + 1) * self.per_character
+        if rows > len(self._cache[0]):          # its rows may hold a departed character's cache: finite, masked
+            grown = [np.zeros((max(rows, 2 * len(c)),) + c.shape[1:], np.float32) for c in self._cache]
+            for new, old in zip(grown, self._cache):
+                new[:len(old)] = old
+            self._cache = grown
+        character.slot = len(self.characters)
         self.characters.append(character)
         return character
 
     def remove(self, character: Character) -> None:
-        """Take a character out; its frames not yet decoded are dropped (as closing a stream drops them)."""
-        slot = self._slot(character)
-        keep = np.ones(len(self.cache[0]), bool)
-        keep[slot * self.per_character:(slot + 1) * self.per_character] = False
-        self.cache = [c[keep] for c in self.cache]
-        del self.characters[slot]
+        """Take a character out; its frames not yet decoded are dropped (as closing a stream drops them). The last
+        character moves into its rows."""
+        slot, per = self._slot(character), self.per_character
+        last = self.characters.pop()
+        if last is not character:
+            for c in self._cache:
+                c[slot * per:(slot + 1) * per] = c[last.slot * per:(last.slot + 1) * per]
+            last.slot, self.characters[slot] = slot, last
+        character.slot = None
+
+    @property
+    def cache(self) -> list[np.ndarray]:
+        """The rows in use of every past/present array, [characters * per, L * n_heads, capacity, head_dim]."""
+        return [c[:len(self.characters) * self.per_character] for c in self._cache]
 
     def _slot(self, character: Character) -> int:
-        for i, c in enumerate(self.characters):
-            if c is character:
-                return i
-        raise ValueError(f"{character!r} is not in this crowd")
+        if getattr(character, "crowd", None) is not self or character.slot is None:
+            raise ValueError(f"{character!r} is not in this crowd")
+        return character.slot
 
     # ------------------------------------------------------------------------------------------ the tick
 
@@ -247,7 +262,7 @@ class Crowd:
         would fault in its pages every time. What earlier contexts left there is masked out of attention (a
         context at position p reads slots 0..p only), so only finiteness matters: zeros at first."""
         if len(self._spare[0]) < rows:
-            self._spare = [np.zeros((rows,) + c.shape[1:], np.float32) for c in self.cache]
+            self._spare = [np.zeros((rows,) + c.shape[1:], np.float32) for c in self._cache]
         return [a[:rows] for a in self._spare]
 
     def _step(self, emb: np.ndarray, tokens: np.ndarray, position: np.ndarray, cache: list[np.ndarray]):
