@@ -5,7 +5,8 @@
 Writes into --out:
   units.json              numpy PCG64 draws, numpy sums, sampler picks on random logits, tokenizer ids
   *.tokenizer.json        the tokenizer files units.json refers to (MiniLM's, configured as the exporter does)
-  bundle-<name>.json      per bundle and variant: tokenizer ids and text embeddings of the prompts, the first
+  bundle-<name>.json      per bundle: its name, path and variants
+  variant-<name>-<v>.json per bundle and variant: tokenizer ids and text embeddings of the prompts, the first
                           step's logits, greedy and sampled tokens (4 prompts x 3 seeds x 5 settings, guidance
                           1 and 2), fixed lengths, batches, features and joints of a few motions; on endless
                           bundles a timeline, a stream whose prompt changes, and a two-stream EndlessLoop
@@ -312,11 +313,13 @@ def main(argv=None) -> int:
     for name, path in bundles.items():
         manifest = json.loads((Path(path) / "manifest.json").read_text())
         variants = [v for v in ("fp32", "int8", "portable", "int8_fixed") if v in manifest["variants"]]
-        ref = {"name": name, "path": str(Path(path).resolve()),
-               "variants": {v: bundle_reference(Path(path), v, args.long_seconds) for v in variants}}
+        # one file per variant: a bundle's variants together outgrow the longest string Node can read (512 MB)
+        for v in variants:
+            (args.out / f"variant-{name}-{v}.json").write_text(
+                json.dumps(bundle_reference(Path(path), v, args.long_seconds)))
         target = args.out / f"bundle-{name}.json"
-        target.write_text(json.dumps(ref))
-        print(f"wrote {target} ({', '.join(variants)})")
+        target.write_text(json.dumps({"name": name, "path": str(Path(path).resolve()), "variants": variants}))
+        print(f"wrote {target} and a variant file each ({', '.join(variants)})")
     return 0
 
 

@@ -17,9 +17,14 @@ export function readReference(name) {
   return JSON.parse(readFileSync(join(referenceDir(), name), 'utf8'));
 }
 
-/** Every bundle reference (bundle-<name>.json) in the folder. */
+/** Every bundle reference (bundle-<name>.json) in the folder, its variants read from variant-<name>-<v>.json. */
 export function bundleReferences() {
-  return readdirSync(referenceDir()).filter((f) => /^bundle-.*\.json$/.test(f)).sort().map(readReference);
+  return readdirSync(referenceDir()).filter((f) => /^bundle-.*\.json$/.test(f)).sort().map((f) => {
+    const ref = readReference(f);
+    const variants = {};
+    for (const v of ref.variants) variants[v] = readReference(`variant-${ref.name}-${v}.json`);
+    return { ...ref, variants };
+  });
 }
 
 /** Largest absolute difference of two equally long numeric arrays (null in JSON = -inf, compared as equal). */
