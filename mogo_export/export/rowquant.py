@@ -113,6 +113,8 @@ def _without_zero_point(n: onnx.NodeProto, inits: dict, const: _Constants) -> li
     a, w = n.input[0], n.input[1]
     a_zero = n.input[2] if len(n.input) > 2 else ""
     w_zero = n.input[3] if len(n.input) > 3 else ""
+    if not a_zero:                      # no activation zero point: nothing to move
+        return [n]
     if w not in inits or (w_zero and w_zero not in inits):
         raise ValueError(f"MatMulInteger {n.name}: its weights {w!r} are not constants")
     weights = numpy_helper.to_array(inits[w]).astype(np.int64)
@@ -121,11 +123,9 @@ def _without_zero_point(n: onnx.NodeProto, inits: dict, const: _Constants) -> li
     if w_zero:
         weights = weights - numpy_helper.to_array(inits[w_zero]).astype(np.int64)
     colsum = const.add(("colsum", w, w_zero), weights.sum(0).astype(np.int32), f"{w}_colsum")
-    product, (result,) = f"{n.output[0]}_without_zero_point", n.output
+    product, result = f"{n.output[0]}_without_zero_point", n.output[0]
     rewritten = helper.make_node("MatMulInteger", [a, w, "", w_zero] if w_zero else [a, w], [product],
                                  name=n.name)
-    if not a_zero:
-        return [helper.make_node("MatMulInteger", list(n.input), [result], name=n.name)]
     return [rewritten,
             helper.make_node("Mul", [a_zero, colsum], [f"{result}_zero_point_share"]),
             helper.make_node("Sub", [product, f"{result}_zero_point_share"], [result])]

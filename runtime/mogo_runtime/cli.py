@@ -273,7 +273,7 @@ def cmd_crowd(args) -> int:
     took = time.perf_counter() - added
     if sys.stderr.isatty():
         print(file=sys.stderr)
-    seconds = len(parts[members[0]][1][0]) and sum(len(j) for j in parts[members[0]][1]) / gen.dims.fps
+    seconds = gen.tokens_for(args.seconds) * gen.dims.downsample / gen.dims.fps
     print(f"mogo: {count} characters x {seconds:.2f} s of motion in {took:.2f} s ({ticks} ticks, "
           f"{count * seconds / took:.0f} character-seconds per second; prompts encoded in {added - start:.2f} s) "
           f"[{gen.variant}]", file=sys.stderr)

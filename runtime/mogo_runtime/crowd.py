@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .decoding import expand_seeds, make_rngs
+from .decoding import context_tokens, expand_seeds, make_rngs
 from .engine import FixedCacheBackend
 from .motion import FootLock, RootIntegrator
 from .sampling import SamplingConfig, apply_guidance, sample
@@ -204,16 +204,14 @@ class Crowd:
 
     def _plan(self, c: Character) -> tuple[np.ndarray, int]:
         """-> (the tokens this character feeds now (S, L), the cache slot of the first), as EndlessLoop._step."""
-        if c.rebuild or c.cached == self.window + self.refresh:
-            n = 0 if c.rebuild else self.window
-            if n == 0:
-                c.motion = 0
-            ring = (c.count - n + np.arange(n)) % len(c.history)                 # the last n, oldest first
-            bos = np.full((1, self.dims.num_levels), self.dims.bos_id, np.int64)
-            c.rebuild, c.cached, c.length = False, n, 0
-            return np.concatenate([bos, c.history[ring]]), 0
-        c.cached += 1
-        return c.last[None], c.length
+        tokens, c.cached, fresh = context_tokens(c.history, c.count, c.cached, c.rebuild, self.window, self.refresh,
+                                                 self.dims.bos_id, c.last)
+        if not fresh:
+            return tokens, c.length
+        if c.cached == 0:
+            c.motion = 0
+        c.rebuild, c.length = False, 0
+        return tokens, 0
 
     def _pick(self, chars: list[Character], plans: list[tuple[np.ndarray, int]], retry: bool) -> np.ndarray:
         """Feed every character its planned tokens and sample its next tokens (C, L).

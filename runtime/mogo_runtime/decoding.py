@@ -152,16 +152,14 @@ class EndlessLoop:
     def _step(self, b: int) -> np.ndarray:
         dims = self.backend.dims
         for retry in (False, True):
-            if self.past[b] is None or self.cached[b] == self.window + self.refresh:
-                n = 0 if self.past[b] is None else self.window
-                if n == 0:
+            tokens, self.cached[b], fresh = context_tokens(
+                self.history[b], self.count, self.cached[b], self.past[b] is None, self.window, self.refresh,
+                dims.bos_id, self.last[b] if self.count else None)
+            tokens = tokens[None]
+            if fresh:
+                if self.cached[b] == 0:
                     self.motion[b] = 0
-                bos = np.full((1, 1, dims.num_levels), dims.bos_id, np.int64)
-                ring = (self.count - n + np.arange(n)) % self.history.shape[1]  # the last n, oldest first
-                tokens = np.concatenate([bos, self.history[b:b + 1, ring]], axis=1)
-                self.past[b], self.cached[b] = self.backend.empty_past(len(self.rows_emb[b])), n
-            else:
-                tokens, self.cached[b] = self.last[b:b + 1, None], self.cached[b] + 1
+                self.past[b] = self.backend.empty_past(len(self.rows_emb[b]))
             if self.guided:
                 tokens = np.concatenate([tokens, tokens])
             logits, self.past[b] = self.backend.step(self.rows_emb[b], tokens, self.past[b])
@@ -179,6 +177,20 @@ class EndlessLoop:
             self.past[b] = None                       # the motion ended: start the prompt again
             self.restarts += 1
         raise AssertionError("unreachable: END is forbidden on the retry")
+
+
+def context_tokens(history: np.ndarray, count: int, cached: int, restart: bool, window: int, refresh: int,
+                   bos_id: int, last: np.ndarray | None) -> tuple[np.ndarray, int, bool]:
+    """What an endless stream feeds next (docs/bundle.md, "Endless streams"): -> (tokens (S, L), motion tokens
+    cached after them, whether they start a fresh context). A fresh context is BOS and the last n picked tokens
+    (`history`: a ring, token t at t % len): n = 0 after a new prompt or END (`restart`), `window` once the context
+    holds window + refresh; otherwise the stream feeds its last pick."""
+    if restart or cached == window + refresh:
+        n = 0 if restart else window
+        ring = (count - n + np.arange(n)) % len(history)                       # the last n, oldest first
+        bos = np.full((1, history.shape[1]), bos_id, np.int64)
+        return np.concatenate([bos, history[ring]]), n, True
+    return last[None], cached + 1, False
 
 
 def collect_tokens(steps: Iterator[tuple[np.ndarray, np.ndarray]], batch: int, num_levels: int):

@@ -13,6 +13,8 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import PurePosixPath
 
 from .features import FeatureLayout
+from .fixed_cache import (INT8_FIXED, PER_ROW_INT8, PORTABLE, PORTABLE_OPSET,  # noqa: F401  (contract)
+                          check_fixed_cache, required_capacity)
 from .jsonfields import BundleError, Fields, kind
 from .sampling import SamplingConfig
 from .skeleton import SKELETONS, Skeleton
@@ -27,10 +29,6 @@ GRAPH_IO = {"text_encoder": ({"input_ids": 2, "attention_mask": 2}, {"text_embed
             "lookup": ({"tokens": 3}, {"latent": 3}),
             "decoder": ({"latent": 3}, {"features": 3})}
 DTYPES = {"float32": "tensor(float)", "int64": "tensor(int64)", "float16": "tensor(float16)"}  # -> onnxruntime
-PORTABLE = "portable"          # the variant whose step graph has a fixed-capacity cache (section `portable`)
-INT8_FIXED = "int8_fixed"      # the same step graph in per-row int8: batch-invariant, so a crowd can batch it
-PER_ROW_INT8 = "mogo.per_row_dynamic"   # its quantization method: one activation scale per row (export/rowquant.py)
-PORTABLE_OPSET = 17            # its graphs' opset: this or lower (LayerNormalization's first; docs/bundle.md)
 ORT_SUFFIX = ".ort"            # graph files in onnxruntime's ORT format (section `ort`)
 NORMALIZATION = "decoder-output-denormalised"   # decoder.onnx multiplies by Std and adds Mean itself
 _SHA256 = re.compile(r"[0-9a-f]{64}")
@@ -179,13 +177,6 @@ class StreamingSpec:
     refresh: int
 
 
-def required_capacity(model: ModelDims, streaming: StreamingSpec | None) -> int:
-    """Cache slots the generation loop can fill: a clip is BOS plus at most max_tokens - 1 fed tokens (the +1
-    spares a consumer that also feeds the token picked at the last step), an endless stream's context is BOS
-    plus at most window + refresh motion tokens (docs/bundle.md)."""
-    return max(model.max_tokens + 1, 1 + streaming.window + streaming.refresh if streaming else 0)
-
-
 @dataclass(frozen=True)
 class PortableSpec:
     """The `portable` variant's step graph (docs/bundle.md, "The portable variant"): one time step per call over
@@ -321,47 +312,9 @@ class Manifest:
         if len(logits) != 4 or logits[2:] != (m.num_levels, m.codebook_size + 1):
             raise BundleError(f"{where}: field graphs.step.outputs[0].shape: {list(logits)} should end in "
                               f"[{m.num_levels}, {m.codebook_size + 1}] (levels, codes + END)")
-        self._check_portable(where)
+        check_fixed_cache(self, where)
         self._check_ort(where)
         return self
-
-    def _check_portable(self, where: str) -> None:
-        """The portable section and the portable variant come together; the step's I/O is the fixed cache."""
-        if (self.portable is None) != (PORTABLE not in self.variants):
-            raise BundleError(f"{where}: field portable: " + (
-                "the bundle has no 'portable' variant for it to describe" if self.portable else
-                "missing: variant 'portable' needs this section (its step graph's inputs, outputs and capacity)"))
-        if INT8_FIXED in self.variants and PORTABLE not in self.variants:
-            raise BundleError(f"{where}: field variants.{INT8_FIXED}: comes with variant {PORTABLE!r}, whose section "
-                              f"'portable' describes its step graph")
-        if self.portable is None:
-            return
-        quantized = [g for g, e in self.variants[PORTABLE].items() if e.quantized]
-        if quantized:
-            raise BundleError(f"{where}: field variants.{PORTABLE}.{quantized[0]}.quantization: the portable "
-                              f"variant is fp32 only (no int8 operators)")
-        step = self.variants[INT8_FIXED]["step"] if INT8_FIXED in self.variants else None
-        if step is not None and (step.quantization or {}).get("method") != PER_ROW_INT8:
-            raise BundleError(f"{where}: field variants.{INT8_FIXED}.step.quantization: its step graph is the "
-                              f"portable step quantized per row (method {PER_ROW_INT8!r}), got {step.quantization!r}")
-        m, spec, cap = self.model, self.portable.step, self.portable.capacity
-        cache = [m.num_levels * m.n_heads, cap, m.head_dim]
-        want = {"inputs": {"text_embedding": ("float32", [m.text_dim]), "tokens": ("int64", [1, m.num_levels]),
-                           "position": ("int64", []), **dict.fromkeys(self.past_names, ("float32", cache))},
-                "outputs": {"logits": ("float32", [1, m.num_levels, m.codebook_size + 1]),
-                            **dict.fromkeys(self.present_names, ("float32", cache))}}
-        for kind, expected in want.items():
-            got = {s.name: s for s in getattr(spec, kind)}
-            if list(got) != list(expected):
-                raise BundleError(f"{where}: field portable.step.{kind}: names are {list(got)}, expected "
-                                  f"{list(expected)} (n_layers and the cache templates)")
-            for i, (name, (dtype, dims)) in enumerate(expected.items()):
-                s = got[name]
-                # every dim but the batch is fixed: a consumer allocates the cache once, from these numbers
-                if s.dtype != dtype or list(s.shape[1:]) != dims:
-                    raise BundleError(f"{where}: field portable.step.{kind}[{i}]: {name!r} is {s.dtype} "
-                                      f"[{', '.join(map(str, s.shape))}], expected {dtype} "
-                                      f"[{', '.join(map(str, ['batch', *dims]))}]")
 
     def _check_ort(self, where: str) -> None:
         """ORT-format variants: each listed with its source, every file an .ort, quantized as its source."""

@@ -178,11 +178,11 @@ class FootLock:
 
     def push(self, joints: np.ndarray, features: np.ndarray) -> np.ndarray:
         """joints (n, J, 3) float32 and their features (n, D) -> the locked joints (n, J, 3) float32."""
+        if not len(joints):
+            return np.asarray(joints, np.float32)
         j = np.asarray(joints, np.float64)
         toe = j[:, self.toes][..., [0, 2]]                                      # (n, 2 toes, xz)
         contact = np.asarray(features)[:, self.channels] > self.CONTACT         # (n, 2)
-        if not len(j):
-            return np.asarray(joints, np.float32)
         prev_toe, prev_contact = self.previous if self.previous is not None else (toe[0], np.zeros(2, bool))
         slide = np.diff(np.concatenate([prev_toe[None], toe]), axis=0)          # (n, 2, 2)
         held = np.concatenate([prev_contact[None], contact])[:-1] & contact     # (n, 2)
