@@ -25,91 +25,9 @@ import time
 
 _T_START = time.perf_counter()   # before any heavy import: the cold case's clock starts here
 
-PROMPT = "a person walks forward and then jumps"
-MOTION_FRAMES = 196              # the issue's 9.8 s motion at 20 fps
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# helpers
-
-def stats(xs: list[float]) -> dict:
-    """median, min, max, quartiles of a list of seconds (or any numbers)."""
-    import statistics
-
-    xs = sorted(float(x) for x in xs)
-    n = len(xs)
-    if n == 0:
-        return {"n": 0}
-    q = statistics.quantiles(xs, n=4, method="inclusive") if n >= 2 else [xs[0]] * 3
-    return {"n": n, "median": statistics.median(xs), "min": xs[0], "max": xs[-1], "q1": q[0], "q3": q[2],
-            "values": xs}
-
-
-def peak_rss_bytes() -> int:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024       # Linux: kilobytes
-
-
-def current_rss_bytes(field: str = "VmRSS") -> int | None:
-    """VmRSS (now) or VmHWM (peak) from /proc: getrusage's peak lags behind the current value at times."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith(field + ":"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
-
-
-def read_manifest(bundle: str):
-    """The bundle's typed manifest, without hashing files or opening graphs (the cold case measures those)."""
-    from mogo_runtime import Bundle
-
-    return Bundle.load(bundle, verify_hashes=False, check_graphs=False).manifest
-
-
-def motion_tokens(dims, frames: int = MOTION_FRAMES) -> int:
-    """Tokens of a `frames`-frame motion (what MotionGenerator.tokens_for(frames / fps) gives), capped at max."""
-    return max(1, min(dims.max_tokens, int(round(frames / dims.downsample))))
-
-
-def guided(manifest) -> bool:
-    return manifest.sampling_defaults.guidance != 1.0
-
-
-class Timers:
-    """Accumulating wall-clock buckets; `wrap(obj, attr, bucket)` replaces obj.attr by a timed call."""
-
-    def __init__(self):
-        self.total: dict[str, float] = {}
-        self.calls: dict[str, int] = {}
-        self._undo: list = []
-
-    def wrap(self, obj, attr: str, bucket: str):
-        total, calls = self.total, self.calls
-        total.setdefault(bucket, 0.0)
-        calls.setdefault(bucket, 0)
-        fn = getattr(obj, attr)             # a renamed attribute fails the case instead of reporting 0
-
-        def timed(*a, **k):
-            t = time.perf_counter()
-            try:
-                return fn(*a, **k)
-            finally:
-                total[bucket] += time.perf_counter() - t
-                calls[bucket] += 1
-
-        had = attr in getattr(obj, "__dict__", {})
-        setattr(obj, attr, timed)
-        self._undo.append((obj, attr, fn, had))
-
-    def restore(self):
-        for obj, attr, fn, had in reversed(self._undo):
-            if had or isinstance(obj, type(sys)):
-                setattr(obj, attr, fn)
-            else:
-                delattr(obj, attr)
-        self._undo.clear()
+from .common import (PROMPT, SOAK_LIMIT, current_rss_bytes, guided, motion_tokens, peak_rss_bytes,  # noqa: E402
+                     profiled, read_manifest, stats)
+from .crowd import case_crowd, case_crowd_soak  # noqa: E402
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -161,12 +79,13 @@ def case_floor(args) -> dict:
 def case_step(args) -> dict:
     import numpy as np
     from mogo_runtime import Bundle
-    from mogo_runtime.engine import OrtBackend, RowByRow, open_backend
+    from mogo_runtime.text import session_options
 
-    # The step graph alone, batched: skip load-time hashing and signature sessions (the cold case measures those).
-    bundle = Bundle.load(args.bundle, verify_hashes=False, check_graphs=False)
-    be = OrtBackend(bundle, variant=args.variant, threads=args.threads)
-    row_by_row = isinstance(open_backend(bundle, args.variant, 1), RowByRow)   # how the runtime would run it
+    # The step graph alone, batched (however the runtime would split it), on the growing cache.
+    bundle = Bundle.load(args.bundle, args.variant)
+    session = bundle.session("step", args.variant, session_options(args.threads))
+    outputs = ["logits", *bundle.manifest.present_names]
+    row_by_row = "step" in bundle.manifest.row_by_row(args.variant)             # how the runtime would run it
     m = bundle.dims
     L, K = m.num_levels, m.codebook_size
     rows = args.batch * (2 if guided(bundle.manifest) else 1)
@@ -180,14 +99,15 @@ def case_step(args) -> dict:
     for P in pasts:
         past = [rng.standard_normal((rows, L * m.n_heads, P, m.head_dim)).astype(np.float32)
                 for _ in bundle.manifest.past_names]
+        feed = {"text_embedding": emb, "tokens": tokens, **dict(zip(bundle.manifest.past_names, past))}
         for _ in range(args.warmup):
-            be.step(emb, tokens, past)
+            session.run(outputs, feed)
         per_repeat = []
         for _ in range(args.repeats):
             times = []
             for _ in range(args.iters):
                 t = time.perf_counter()
-                be.step(emb, tokens, past)
+                session.run(outputs, feed)
                 times.append(time.perf_counter() - t)
             per_repeat.append(float(np.median(times)))                          # robust to a stray slow call
         results.append({"past": P, "seconds": stats(per_repeat),
@@ -199,36 +119,6 @@ def case_step(args) -> dict:
 
 # ----------------------------------------------------------------------------------------------------------------
 # e2e: text -> joints with the runtime
-
-def _ort_profile(gen, seconds: float, seed: int) -> dict:
-    """One instrumented generate(): where the wall time goes."""
-    import mogo_runtime.decoding as decoding
-
-    be = gen.backend
-    engine = getattr(be, "inner", be)          # OrtBackend, under RowByRow for quantized variants
-    tm = Timers()
-    tm.wrap(be, "encode_text", "text")
-    tm.wrap(be, "step", "step")
-    tm.wrap(engine.step_session, "run", "step_session_run")
-    tm.wrap(be, "decode", "decode")
-    tm.wrap(engine.lookup_session, "run", "lookup_session_run")
-    tm.wrap(engine.decoder_session, "run", "decoder_session_run")
-    tm.wrap(decoding, "sample", "sample")
-    tm.wrap(decoding, "recover_from_ric", "joints")
-    try:
-        t = time.perf_counter()
-        gen.generate(PROMPT, seconds=seconds, seed=seed)
-        wall = time.perf_counter() - t
-    finally:
-        tm.restore()
-    parts = {k: tm.total[k] for k in ("text", "step", "sample", "decode", "joints")}
-    parts["loop_other"] = wall - sum(parts.values())
-    return {"wall": wall, "parts": parts, "calls": dict(tm.calls),
-            "inner": {"step_session_run": tm.total["step_session_run"],
-                      "step_python_feed": tm.total["step"] - tm.total["step_session_run"],
-                      "lookup_session_run": tm.total["lookup_session_run"],
-                      "decoder_session_run": tm.total["decoder_session_run"]}}
-
 
 def case_e2e(args) -> dict:
     import numpy as np
@@ -256,7 +146,8 @@ def case_e2e(args) -> dict:
                 ttff.append(time.perf_counter() - t)
         stream_walls.append(time.perf_counter() - t)
         assert n == frames, (n, frames)
-    profile = _ort_profile(gen, seconds, seed=args.seed) if args.profile else None
+    profile = (profiled(lambda clock: gen.generate(PROMPT, seconds=seconds, seed=args.seed, clock=clock))
+               if args.profile else None)
     return {"engine": "onnxruntime", "variant": args.variant, "threads": args.threads, "kv_cache": True,
             "frames": frames, "motion_seconds": frames / fps, "tokens": T,
             "guidance": gen.sampling_defaults.guidance,
@@ -272,7 +163,6 @@ def case_torch(args) -> dict:
     import numpy as np
     import torch
 
-    import mogo_runtime.decoding as decoding
     import mogo_export.reference as tgen
 
     torch.set_num_threads(args.threads)
@@ -291,23 +181,8 @@ def case_torch(args) -> dict:
         (motion,) = gen.generate([PROMPT], seed=args.seed + i, sampling=sampling, num_tokens=T)
         walls.append(time.perf_counter() - t)
         assert motion.joints.shape[0] == frames, (motion.joints.shape, frames)
-    profile = None
-    if args.profile:
-        tm = Timers()
-        tm.wrap(be, "encode_text", "text")
-        tm.wrap(be, "step", "step")
-        tm.wrap(be, "decode", "decode")
-        tm.wrap(decoding, "sample", "sample")
-        tm.wrap(decoding, "recover_from_ric", "joints")
-        try:
-            t = time.perf_counter()
-            gen.generate([PROMPT], seed=args.seed, sampling=sampling, num_tokens=T)
-            wall = time.perf_counter() - t
-        finally:
-            tm.restore()
-        parts = dict(tm.total)
-        parts["loop_other"] = wall - sum(parts.values())
-        profile = {"wall": wall, "parts": parts, "calls": dict(tm.calls)}
+    profile = (profiled(lambda clock: gen.generate([PROMPT], seed=args.seed, sampling=sampling, num_tokens=T,
+                                               clock=clock)) if args.profile else None)
     return {"engine": "torch", "variant": "fp32", "threads": args.threads, "kv_cache": args.kv_cache,
             "frames": frames, "motion_seconds": frames / be.dims.fps, "tokens": T,
             "wall": stats(walls), "rtf": frames / be.dims.fps / float(np.median(walls)),
@@ -326,7 +201,7 @@ def case_cold(args) -> dict:
     t2 = time.perf_counter()
     from mogo_runtime import Bundle, MotionGenerator
 
-    bundle = Bundle.load(args.bundle, variants=[args.variant], check_graphs=False)  # as MotionGenerator(path)
+    bundle = Bundle.load(args.bundle, args.variant)                              # as MotionGenerator(path)
     t3 = time.perf_counter()
     gen = MotionGenerator(bundle, variant=args.variant, threads=args.threads)        # sessions, checked
     t4 = time.perf_counter()
@@ -345,7 +220,6 @@ SOAK_PROMPTS = ("a person walks forward", "a person turns left", "a person waves
                 "a person jumps in place", "a person squats down slowly", "a person runs forward",
                 "a person kicks with the left leg", "a person sits down")
 SOAK_SWITCH_S = (4.0, 10.0)     # stream seconds between prompts, as a game changes a character's action
-SOAK_LIMIT = 1.1                # last interval / first, for both RSS and time per token
 
 
 def case_soak(args) -> dict:
@@ -400,8 +274,6 @@ def case_soak(args) -> dict:
     out["met"] = out["rss_ratio"] <= SOAK_LIMIT and out["token_time_ratio"] <= SOAK_LIMIT
     return out
 
-
-from .crowd import case_crowd, case_crowd_soak  # noqa: E402  (they use the helpers above)
 
 CASES = {"floor": case_floor, "step": case_step, "e2e": case_e2e, "torch": case_torch, "cold": case_cold,
          "soak": case_soak, "crowd": case_crowd, "crowd_soak": case_crowd_soak}

@@ -14,6 +14,8 @@ import time
 
 import numpy as np
 
+from .common import SOAK_LIMIT, current_rss_bytes, peak_rss_bytes
+
 LATE_LIMIT = 0.050          # s: the 99th percentile of frame lateness a real-time character may have
 SWITCH_S = (4.0, 10.0)      # stream seconds between a crowd_soak character's prompts
 PROMPTS = ("a person walks forward", "a person turns left", "a person waves with the right hand",
@@ -78,7 +80,6 @@ def case_crowd(args) -> dict:
 
 
 def case_crowd_soak(args) -> dict:
-    from .cases import SOAK_LIMIT, current_rss_bytes, peak_rss_bytes
 
     gen, make = _crowd(args)
     crowd = make()

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from mogo_runtime.sampling import SamplingConfig
+from mogo_runtime.bundle.sampling import SamplingConfig
 
 if TYPE_CHECKING:
     from mogo_export.reference import TorchGenerator

@@ -39,9 +39,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mogo_runtime.bundle import Bundle
-from mogo_runtime.files import write_atomic
-from mogo_runtime.sampling import SamplingConfig
+from mogo_runtime.bundle import read_manifest
+from mogo_runtime.bundle.sampling import SamplingConfig
+from mogo_runtime.outputs.files import write_atomic
 
 from mogo_export.checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
 from mogo_export.data.dataset import MotionDataset, read_captions
@@ -253,7 +253,7 @@ def bundle_source(bundle: Path, variant: str, sampling: SamplingConfig | None = 
 
 def bundle_sampling(bundle: Path) -> SamplingConfig:
     """The sampling defaults a bundle ships (what its users get), for the torch row to sample alike."""
-    return Bundle.load(bundle, verify_hashes=False, check_graphs=False).manifest.sampling_defaults
+    return read_manifest(bundle).sampling_defaults
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mogo_runtime.files import write_atomic
-from mogo_runtime.sampling import SamplingConfig
+from mogo_runtime.bundle.sampling import SamplingConfig
+from mogo_runtime.outputs.files import write_atomic
 
 from mogo_export.checkpoint import build_from_checkpoint, save_checkpoint
 from mogo_export.data.dataset import MotionDataset, MotionItem
@@ -159,7 +159,7 @@ def vq_reconstruction(data: Path, vq_path: Path, split: str = "test") -> dict:
 
 def family_gif(gen: TorchGenerator, families: list[str], captions: dict[str, str], path: Path,
                sampling: SamplingConfig, seed: int = 0) -> Path:
-    from mogo_runtime.preview import render_grid_gif
+    from mogo_runtime.outputs.preview import render_grid_gif
 
     texts = [captions[f] for f in families]
     motions = gen.generate(texts, seed=seed, sampling=sampling)
@@ -180,7 +180,7 @@ def quality_report(data: Path, ckpt_dir: Path, gif: Path | None = None, bundle: 
         raise ValueError(f"seeds must be 1 or more, got {seeds}")
     variants = []
     if bundle is not None:  # checked before any work: a bad bundle fails now, not after the torch rows
-        from mogo_runtime.bundle import Bundle
+        from mogo_runtime.bundle.folder import Bundle
 
         variants = judged_variants(Bundle.load(bundle).variants)
     from mogo_export.export.bundle import SAMPLING_DEFAULTS as sampling  # what bundles ship, so every row samples alike

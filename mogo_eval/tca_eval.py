@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo_runtime.features import load_mean_std
+from mogo_runtime.kinematics.features import load_mean_std
 from mogo_runtime.tca import CaptionIndex, OfflineAligner, sentence
 
 from .paraphrases import SETS
@@ -61,7 +61,7 @@ def _setup(args):
     bundle = Bundle.load(args.bundle) if args.bundle else None
     index, source = (load_bundle_index(bundle)[0], None) if bundle is not None else (None, None)
     if index is not None:
-        source = f"{args.bundle}/{bundle.manifest.tca['file']}"
+        source = f"{args.bundle}/{bundle.manifest.tca.file}"
     if args.torch:
         from mogo_export.export.bundle import SAMPLING_DEFAULTS
         from mogo_export.reference import TorchGenerator
@@ -74,7 +74,8 @@ def _setup(args):
         from mogo_runtime.text import TextEncoderSession
 
         te = bundle.manifest.text_encoder
-        session = TextEncoderSession(bundle.graph_file("text_encoder", args.variant), bundle.file(te.tokenizer),
+        te_file = bundle.manifest.graph_file("text_encoder", args.variant).file
+        session = TextEncoderSession(bundle.read_verified(te_file), bundle.read_verified(te.tokenizer),
                                      threads=args.threads)
         sampling, encode, encoder = bundle.manifest.sampling_defaults, session.encode, te.name
         make = lambda s: bundle_features(args.bundle, args.variant, s, args.threads)  # noqa: E731

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mogo_runtime.files import write_atomic
-from mogo_runtime.manifest import ModelDims
+from mogo_runtime.bundle.sections import ModelDims
+from mogo_runtime.outputs.files import write_atomic
 
 from .models.transformer import RQHCTransformer, TransformerConfig
 from .models.vq import MoSAVQ, VQConfig

@@ -10,10 +10,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mogo_runtime.decoding import Generated, GenerationTask, expand_seeds
-from mogo_runtime.manifest import StreamingSpec
-from mogo_runtime.sampling import GREEDY, SamplingConfig
-from mogo_runtime.skeleton import HUMANML3D, Skeleton, get_skeleton
+from mogo_runtime.bundle.sampling import GREEDY, SamplingConfig
+from mogo_runtime.bundle.sections import StreamingSpec
+from mogo_runtime.clock import NO_CLOCK, StageClock
+from mogo_runtime.decoding import Generated, GenerationTask
+from mogo_runtime.kinematics.skeleton import HUMANML3D, Skeleton, get_skeleton
+from mogo_runtime.policy import expand_seeds
 
 from .checkpoint import load_trained, model_dims
 from .models.text_encoder import TextEncoder, get_text_encoder
@@ -79,8 +81,10 @@ class TorchGenerator:
         return cls(backend, skeleton=get_skeleton(m.skeleton),
                    streaming=StreamingSpec(**m.streaming) if m.streaming else None)
 
-    def task(self, sampling: SamplingConfig | None = None, num_tokens: int | None = None) -> GenerationTask:
-        return GenerationTask(self.backend, sampling or GREEDY, self.max_tokens, num_tokens, self.streaming)
+    def task(self, sampling: SamplingConfig | None = None, num_tokens: int | None = None,
+             clock: StageClock = NO_CLOCK) -> GenerationTask:
+        return GenerationTask(self.backend, self.skeleton, sampling or GREEDY, self.max_tokens, num_tokens,
+                              self.streaming, clock)
 
     def generate_tokens(self, texts: list[str], seed: int | list[int] = 0, sampling: SamplingConfig | None = None,
                         num_tokens: int | None = None) -> list[np.ndarray]:
@@ -88,6 +92,7 @@ class TorchGenerator:
         return self.task(sampling, num_tokens).tokens(emb, expand_seeds(seed, len(texts)))
 
     def generate(self, texts: list[str], seed: int | list[int] = 0, sampling: SamplingConfig | None = None,
-                 num_tokens: int | None = None) -> list[Generated]:
-        emb = self.backend.encode_text(texts)
-        return self.task(sampling, num_tokens).run(emb, expand_seeds(seed, len(texts)))
+                 num_tokens: int | None = None, clock: StageClock = NO_CLOCK) -> list[Generated]:
+        with clock("text"):
+            emb = self.backend.encode_text(texts)
+        return self.task(sampling, num_tokens, clock).run(emb, expand_seeds(seed, len(texts)))

@@ -23,9 +23,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mogo_runtime.features import recover_from_ric
-from mogo_runtime.files import write_atomic
-from mogo_runtime.skeleton import get_skeleton
+from mogo_runtime.kinematics.features import recover_from_ric
+from mogo_runtime.kinematics.skeleton import get_skeleton
+from mogo_runtime.outputs.files import write_atomic
 
 from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
 from .data.dataset import MotionDataset

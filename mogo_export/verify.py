@@ -26,12 +26,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mogo_runtime.bundle import Bundle
+from mogo_runtime.bundle.folder import Bundle
+from mogo_runtime.bundle.manifest import INT8_FIXED
+from mogo_runtime.bundle.sampling import GREEDY
 from mogo_runtime.decoding import GenerationTask, decode_tokens
 from mogo_runtime.engine import FixedCache, FixedCacheBackend, OrtBackend, open_backend
-from mogo_runtime.features import recover_from_ric
-from mogo_runtime.manifest import INT8_FIXED
-from mogo_runtime.sampling import GREEDY
+from mogo_runtime.kinematics.features import recover_from_ric
 
 from .export.graphs import DecoderGraph, StepGraph
 from .reference import TorchGenerator
@@ -111,7 +111,7 @@ def check_graphs(gen: TorchGenerator, ort_backend: OrtBackend, report: Report, t
 
 
 def _ort_tokens(backend, texts, seeds, max_tokens):
-    return GenerationTask(backend, GREEDY, max_tokens).tokens(backend.encode_text(texts), seeds)
+    return GenerationTask(backend, backend.bundle.skeleton, GREEDY, max_tokens).tokens(backend.encode_text(texts), seeds)
 
 
 def _agreement(a: np.ndarray, b: np.ndarray) -> float:
@@ -190,13 +190,14 @@ class _CountedSteps:
         return self.backend.step(*args)
 
 
-def endless_tokens(backend, prompts: list[str], streaming, steps: int, switch_every: int) -> tuple[np.ndarray, int]:
+def endless_tokens(backend, skeleton, prompts: list[str], streaming, steps: int,
+                   switch_every: int) -> tuple[np.ndarray, int]:
     """Greedy tokens of one endless stream that cycles through `prompts`, switching every `switch_every` tokens
     (a timeline): -> (tokens (steps, L), restarts). Exercises restarts at END, context refreshes and switches."""
     starts = list(range(0, steps, switch_every))
     counted = _CountedSteps(backend)
     embs = backend.encode_text([prompts[k % len(prompts)] for k in range(len(starts))])
-    task = GenerationTask(counted, GREEDY, steps, steps, streaming)
+    task = GenerationTask(counted, skeleton, GREEDY, steps, steps, streaming)
     return task.timeline(embs, starts, seed=0).tokens, counted.calls - steps
 
 
@@ -204,8 +205,8 @@ def check_endless(gen: TorchGenerator, backend, streaming, report: Report, steps
                   switch_every: int = 97, name: str = "ORT fp32") -> None:
     """Torch and ORT (`name`) through the same endless stream: identical greedy tokens, step by step."""
     prompts = list(PROMPTS)
-    a, restarts = endless_tokens(gen.backend, prompts, streaming, steps, switch_every)
-    b, _ = endless_tokens(backend, prompts, streaming, steps, switch_every)
+    a, restarts = endless_tokens(gen.backend, gen.skeleton, prompts, streaming, steps, switch_every)
+    b, _ = endless_tokens(backend, gen.skeleton, prompts, streaming, steps, switch_every)
     same = np.all(a == b, axis=1)
     first = int(np.argmin(same)) if not same.all() else steps
     report.add(f"endless stream, greedy tokens identical torch vs {name} ({steps} steps, {restarts} restarts at "
@@ -224,7 +225,9 @@ def check_portable_graph(gen: TorchGenerator, portable: FixedCacheBackend, repor
             tokens[:, 0] = c.bos_id
         with torch.no_grad():
             want = StepGraph(gen.backend.transformer)(text, tokens, *(p[:, :, :position] for p in full))
-        logits, cache = portable.step(text.numpy(), tokens.numpy(), FixedCache([p.numpy() for p in full], position))
+        # copies: the step writes its slot into the cache in place, and `full` is what the slots are checked against
+        logits, cache = portable.step(text.numpy(), tokens.numpy(), FixedCache([p.numpy().copy() for p in full],
+                                                                                position))
         err = max(np.abs(logits - want[0].numpy()).max(),
                   max(np.abs(p[:, :, :position + 1] - w.numpy()).max() for p, w in zip(cache.arrays, want[1:])))
         kept = all(np.array_equal(p[:, :, position + 1:], f[:, :, position + 1:].numpy())

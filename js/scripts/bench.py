@@ -12,7 +12,7 @@ from mogo_runtime.decoding import GenerationTask
 bundle, variant, steps = sys.argv[1], (sys.argv[2:3] or ["fp32"])[0], int((sys.argv[3:4] or ["300"])[0])
 gen = MotionGenerator(bundle, variant=variant, threads=1)
 emb = gen.backend.encode_text(["a person walks forward"])
-task = GenerationTask(gen.backend, gen.sampling_defaults, gen.max_tokens, None, gen.bundle.manifest.streaming)
+task = GenerationTask(gen.backend, gen.skeleton, gen.sampling_defaults, gen.max_tokens, None, gen.bundle.manifest.streaming)
 loop = task.loop(emb, [1])
 for _ in range(20):   # warm up
     loop.step()

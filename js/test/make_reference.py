@@ -26,9 +26,10 @@ import numpy as np
 from tokenizers import Tokenizer
 
 from mogo_runtime import MotionGenerator, SamplingConfig
-from mogo_runtime.decoding import GenerationTask, make_rngs
-from mogo_runtime.motion import FootLock
-from mogo_runtime.sampling import sample
+from mogo_runtime.decoding import GenerationTask
+from mogo_runtime.kinematics.frames import FootLock
+from mogo_runtime.kinematics.skeleton import HUMANML3D
+from mogo_runtime.policy import make_rngs, sample
 from mogo_runtime.text import TokenizerSettings, configure_tokenizer, tokenize
 
 PROMPTS = ["a person walks forward", "a person jumps twice", "a person turns left and then kicks",
@@ -83,14 +84,14 @@ def sampler_cases(rng) -> list[dict]:
 
 
 def foot_lock_cases(rng) -> list[dict]:
-    """Random joints drifting along x with random toe contacts through motion.FootLock, whole and in chunks of 5."""
+    """Random joints drifting along x with random toe contacts through kinematics.frames.FootLock, whole and in chunks of 5."""
     cases = []
     for frames in (1, 9, 60):
         joints = rng.normal(scale=0.3, size=(frames, 22, 3)).astype(np.float32)
         joints[..., 0] += 0.01 * np.arange(frames, dtype=np.float32)[:, None]
         feats = rng.normal(size=(frames, 263)).astype(np.float32)
         feats[:, [260, 262]] = rng.random((frames, 2)) > 0.4
-        lock = FootLock(22)
+        lock = FootLock(HUMANML3D)
         chunked = np.concatenate([lock.push(joints[i:i + 5], feats[i:i + 5]) for i in range(0, frames, 5)])
         cases.append({"joints": _floats(joints), "features": _floats(feats), "locked": _floats(chunked)})
     return cases
@@ -281,7 +282,7 @@ def stream_reference(gen: MotionGenerator, seconds: float) -> dict:
 def loop_reference(gen: MotionGenerator, steps: int) -> dict:
     """Two streams of one EndlessLoop, step by step, with how often END restarted a motion."""
     cfg = dict(temperature=1.0)
-    task = GenerationTask(gen.backend, SamplingConfig(**cfg), gen.max_tokens, None, gen.bundle.manifest.streaming)
+    task = GenerationTask(gen.backend, gen.skeleton, SamplingConfig(**cfg), gen.max_tokens, None, gen.bundle.manifest.streaming)
     loop = task.loop(gen.backend.encode_text(PROMPTS[:2]), [11, 12])
     tokens = [loop.step().tolist() for _ in range(steps)]
     return {"texts": PROMPTS[:2], "seeds": ["11", "12"], "sampling": cfg, "tokens": tokens, "restarts": loop.restarts}

@@ -25,8 +25,8 @@ from typing import Iterator, NamedTuple
 
 import numpy as np
 
-from mogo_runtime.features import FeatureLayout, denormalize as _denormalize, load_mean_std, normalize as _normalize
-from mogo_runtime.skeleton import get_skeleton
+from mogo_runtime.kinematics.features import FeatureLayout, denormalize as _denormalize, load_mean_std, normalize as _normalize
+from mogo_runtime.kinematics.skeleton import get_skeleton
 
 SPLITS = ("train", "val", "test")
 # T2M's minimum motion lengths (frames); both datasets keep clips shorter than 200 frames

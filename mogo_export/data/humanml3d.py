@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from mogo_runtime.features import FeatureLayout
-from mogo_runtime.quaternion import qbetween, qinv, qmul, qrot, quaternion_to_cont6d
-from mogo_runtime.skeleton import HUMANML3D, Skeleton
+from mogo_runtime.kinematics.features import FeatureLayout
+from mogo_runtime.kinematics.quaternion import qbetween, qinv, qmul, qrot, quaternion_to_cont6d
+from mogo_runtime.kinematics.skeleton import HUMANML3D, Skeleton
 
 _Y_UP = np.array([0.0, 1.0, 0.0])
 _Z_FORWARD = np.array([0.0, 0.0, 1.0])

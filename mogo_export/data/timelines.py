@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo_runtime.features import FeatureLayout
-from mogo_runtime.skeleton import get_skeleton
+from mogo_runtime.kinematics.features import FeatureLayout
+from mogo_runtime.kinematics.skeleton import get_skeleton
 
 from .dataset import read_captions, read_features, read_split
 

@@ -28,14 +28,14 @@ import tokenizers
 import torch
 from onnxruntime.quantization import QuantType, quantize_dynamic
 
-from mogo_runtime.bundle import sha256_file
-from mogo_runtime.files import process_alive, write_atomic
-from mogo_runtime.manifest import (INT8_FIXED, ORT_SUFFIX, PER_ROW_INT8, PORTABLE, PORTABLE_OPSET, SCHEMA,
-                                   SCHEMA_VERSION, GraphFile, GraphSpec,
-                                   Manifest, Normalization, OrtFormat, PortableSpec, StreamingSpec, TensorSpec,
-                                   TextEncoderSpec, required_capacity)
-from mogo_runtime.sampling import SamplingConfig
-from mogo_runtime.skeleton import get_skeleton
+from mogo_runtime.bundle.folder import sha256_file
+from mogo_runtime.bundle.manifest import INT8_FIXED, ORT_SUFFIX, PORTABLE, SCHEMA, SCHEMA_VERSION, Manifest
+from mogo_runtime.bundle.sampling import SamplingConfig
+from mogo_runtime.bundle.sections import (PER_ROW_INT8, PORTABLE_OPSET, GraphFile, GraphSpec, Normalization,
+                                          OrtFormat, PortableSpec, Quantization, StreamingSpec, TensorSpec,
+                                          TextEncoderSpec, required_capacity)
+from mogo_runtime.kinematics.skeleton import get_skeleton
+from mogo_runtime.outputs.files import process_alive, write_atomic
 
 from .. import __version__
 from ..checkpoint import load_trained, model_dims
@@ -178,7 +178,7 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
             log(f"quantizing {g} to int8 ...")
             fp32, q = tmp / f"{g}.onnx", tmp / f"{g}.int8.onnx"
             options = quantize_text_encoder(fp32, q) if g == "text_encoder" else quantize_step(fp32, q)
-            variants["int8"][g] = GraphFile(q.name, {"method": "onnxruntime.quantize_dynamic", **options})
+            variants["int8"][g] = GraphFile(q.name, Quantization("onnxruntime.quantize_dynamic", options))
         portable_spec = None
         if portable:
             capacity = required_capacity(dims, StreamingSpec(**trained.streaming) if trained.streaming else None)
@@ -195,7 +195,7 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
                 log("quantizing the portable step to per-row int8 ...")
                 options = quantize_step_per_row(tmp / "step.portable.onnx", tmp / "step.portable.int8.onnx")
                 variants[INT8_FIXED] = {**variants["int8"], "step": GraphFile("step.portable.int8.onnx",
-                                                                             {"method": PER_ROW_INT8, **options})}
+                                                                             Quantization(PER_ROW_INT8, options))}
         ort_format = _write_ort(tmp, variants, ort, log) if ort else None
         te_meta = te.get("metadata", {})
         manifest = Manifest(

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mogo_runtime.tca import DEFAULTS, CaptionIndex
+from mogo_runtime.bundle.sections import TcaSpec
+from mogo_runtime.tca import CaptionIndex
 
 from ..data.dataset import MotionDataset
 
@@ -51,11 +52,7 @@ def build_caption_index(dataset_root: str | Path, text_encoder, out_path: str | 
     return {**facts, "split": split, "bytes": out_path.stat().st_size}
 
 
-def tca_manifest_section(facts: dict, method: str | None = None) -> dict:
-    """The manifest's `tca` section: the index's facts plus the offline aligner's defaults (docs/tca.md)."""
-    defaults = dict(DEFAULTS)
-    if method is not None:
-        defaults["method"] = method
-    return {"file": facts["file"], "count": facts["count"], "dim": facts["dim"], "dtype": facts["dtype"],
-            "encoder": facts["encoder"], "labels": facts["labels"], "split": facts.get("split", "train"),
-            **defaults}
+def tca_manifest_section(facts: dict) -> TcaSpec:
+    """The manifest's `tca` section: the index's facts, and the offline aligner's defaults (docs/tca.md)."""
+    return TcaSpec(file=facts["file"], count=facts["count"], dim=facts["dim"], dtype=facts["dtype"],
+                   encoder=facts["encoder"], labels=facts["labels"], split=facts.get("split", "train"))

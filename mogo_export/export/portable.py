@@ -32,7 +32,7 @@ import torch
 import torch.nn as nn
 from torch.export import Dim
 
-from mogo_runtime.manifest import PORTABLE_OPSET
+from mogo_runtime.bundle.sections import PORTABLE_OPSET
 
 from ..models.transformer import RQHCTransformer
 from .graphs import check_graph, export_module

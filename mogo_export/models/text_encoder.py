@@ -34,7 +34,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 from tokenizers import Tokenizer
 
-from mogo_runtime.files import write_atomic
+from mogo_runtime.outputs.files import write_atomic
 from mogo_runtime.text import TokenizerSettings, check_texts, configure_tokenizer, tokenize
 
 

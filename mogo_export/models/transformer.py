@@ -8,7 +8,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from mogo_runtime.manifest import SpecialTokens
+from mogo_runtime.bundle.sections import SpecialTokens
 
 # Tokens: ids 0..K-1 are codes, END = K ends the motion (the head predicts K+1 classes), BOS = K+1 marks
 # "the PnQ prefix goes here" (input only), PAD = K+2 pads batches (input only).

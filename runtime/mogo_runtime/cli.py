@@ -27,13 +27,12 @@ from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
-from .bundle import GRAPHS, Bundle, BundleError
-from .manifest import SCHEMA_VERSION
-from .sampling import SamplingConfig
-from .motion import RIG_FORMATS, SAVE_FORMATS, check_output_path
-from .rig import RIGS, load_rig
+from .bundle.folder import Bundle, read_manifest
+from .bundle.manifest import SCHEMA_VERSION
+from .bundle.sampling import SamplingConfig
+from .bundle.sections import GRAPHS, BundleError
+from .outputs.motion import RIG_FORMATS, SAVE_FORMATS, check_output_path
+from .outputs.rig import RIGS, load_rig
 from .text import check_texts
 
 DEFAULT_BUNDLE = "bundles/base"
@@ -240,7 +239,6 @@ def cmd_generate(args) -> int:
 
 def cmd_crowd(args) -> int:
     from .crowd import Crowd
-    from .motion import Motion
 
     check_texts(args.text)
     count = len(args.text) if args.characters is None else args.characters
@@ -255,18 +253,12 @@ def cmd_crowd(args) -> int:
     gen = _load_generator(args)
     crowd = Crowd(gen, sampling=_sampling(args, gen.sampling_defaults))
     start = time.perf_counter()
-    members = [crowd.add(args.text[i % len(args.text)], seed=args.seed + i, seconds=args.seconds)
+    members = [crowd.add(args.text[i % len(args.text)], seed=args.seed + i, seconds=args.seconds, record=True)
                for i in range(count)]
     added = time.perf_counter()
-    parts = {c: ([], [], []) for c in members}
     ticks = 0
     while crowd:
-        for c, frames in crowd.tick().items():
-            parts[c][0].append(frames.features)
-            parts[c][1].append(frames.joints)
-        for c in members:
-            if len(parts[c][2]) < c.count:
-                parts[c][2].append(c.last.copy())
+        crowd.tick()
         ticks += 1
         if sys.stderr.isatty():
             print(f"\rmogo: crowd of {count}, tick {ticks}", end="", file=sys.stderr, flush=True)
@@ -278,9 +270,7 @@ def cmd_crowd(args) -> int:
           f"{count * seconds / took:.0f} character-seconds per second; prompts encoded in {added - start:.2f} s) "
           f"[{gen.variant}]", file=sys.stderr)
     for c, path in zip(members, paths):
-        features, joints, tokens = parts[c]
-        motion = Motion(text=c.text, features=np.concatenate(features), joints=np.concatenate(joints),
-                        fps=gen.dims.fps, tokens=np.stack(tokens), skeleton=gen.skeleton, seed=c.seed)
+        motion = c.motion()
         print(f"wrote {motion.save(path, rig=rig) if rig else motion.save(path)}")
     return 0
 
@@ -355,7 +345,7 @@ def _read_lines(stream) -> queue.Queue:
 
 def cmd_info(args) -> int:
     path = args.bundle if args.bundle is not None else default_bundle()[0]
-    bundle = Bundle.load(path, verify_hashes=False, check_graphs=False)   # hashes are checked below, one by one
+    bundle = Bundle(path, read_manifest(path))       # each file's size and hash are checked below, one by one
     m, d = bundle.manifest, bundle.dims
     producer = m.producer or {}
     made = {k: producer[k] for k in ("name", "version", "torch", "onnx", "onnxruntime", "opset", "created")
@@ -372,7 +362,7 @@ def cmd_info(args) -> int:
     print(f"sampling   {_describe(m.sampling_defaults.to_dict())}")
     print("variants")
     for v in bundle.variants:
-        files = [bundle.graph_file(g, v).name for g in GRAPHS]
+        files = [m.graph_file(g, v).file for g in GRAPHS]
         print(f"  {v:<12} {_mb(bundle.total_bytes(v)):>9}  " + ", ".join(f"{g}={f}" for g, f in zip(GRAPHS, files)))
     if m.portable:
         print(f"portable   step graph over a fixed cache of {m.portable.capacity} steps, opset {m.portable.opset}")

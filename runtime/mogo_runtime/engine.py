@@ -1,7 +1,13 @@
 """The inference engine: a bundle variant's graphs on onnxruntime, as the `decoding.Backend` the loop drives.
 
-    backend = open_backend(bundle, "int8", threads=1)   # OrtBackend, wrapped in RowByRow for quantized graphs
+    backend = open_backend(bundle, "int8", threads=1)   # OrtBackend: the step graph with a growing cache
     backend = open_backend(bundle, "portable")          # FixedCacheBackend: the fixed-capacity step graph
+
+Graphs quantized per tensor run one row per call (one prompt, one guidance branch): dynamic quantization scales
+activations by the range of the whole input tensor, so such a graph would give a prompt different numbers depending
+on the other prompts in its batch (measured: int8 tokens parted from a lone run's within 2-13 steps). Row by row, a
+prompt's motion depends on its seed alone, batched or not; the step's cache is then one list of arrays per row.
+Per-row int8 (`int8_fixed`) is batch-invariant and runs batched.
 """
 from __future__ import annotations
 
@@ -9,28 +15,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bundle import Bundle, BundleError
-from .manifest import GRAPHS, PER_ROW_INT8, ModelDims
+from .bundle.folder import Bundle
+from .bundle.sections import BundleError, ModelDims
 from .text import TextEncoderSession, check_threads, session_options
+
 
 class NonFiniteOutput(BundleError):
     """A graph returned NaN or inf: its bundle is broken, whatever the input."""
 
 
-
-
-def open_backend(bundle: Bundle, variant: str = "fp32", threads: int = 1):
-    """The backend for one variant: the portable step through FixedCacheBackend, graphs quantized per tensor one
-    row at a time (see RowByRow; per-row int8 is batch-invariant and runs batched)."""
-    portable = variant in bundle.manifest.variants and bundle.manifest.fixed_cache(variant)
-    backend = (FixedCacheBackend if portable else OrtBackend)(bundle, variant, threads)
-    row_by_row = {g for g in GRAPHS if bundle.manifest.graph_file(g, variant).quantized and
-                  bundle.manifest.graph_file(g, variant).quantization.get("method") != PER_ROW_INT8}
-    return RowByRow(backend, row_by_row) if row_by_row else backend
+def open_backend(bundle: Bundle, variant: str = "fp32", threads: int = 1) -> "OrtBackend":
+    """The backend for one variant: the portable step's fixed cache through FixedCacheBackend, else OrtBackend."""
+    if variant not in bundle.manifest.variants:
+        raise ValueError(f"unknown variant {variant!r}; bundle {bundle.path} has {', '.join(bundle.variants)}")
+    return (FixedCacheBackend if bundle.manifest.fixed_cache(variant) else OrtBackend)(bundle, variant, threads)
 
 
 class OrtBackend:
-    """One CPU session per graph of one bundle variant, every call batched.
+    """One CPU session per graph of one bundle variant, every call batched (graphs quantized per tensor: a row per
+    call, see the module docstring).
 
     The KV cache is the list of `present.*` arrays a step returns, handed back as the next step's
     `past_key_values.*` inputs as they are (names from the manifest's cache templates). Neither direction
@@ -45,49 +48,64 @@ class OrtBackend:
         self.bundle, self.variant, self.threads = bundle, variant, check_threads(threads)
         self.dims: ModelDims = bundle.dims
         manifest = bundle.manifest
+        self.one_row = manifest.row_by_row(variant)       # graphs that run one row per call
+        te = manifest.graph_file("text_encoder", variant).file
         try:
-            graph, tokenizer = bundle.graph_file("text_encoder", variant), bundle.file(manifest.text_encoder.tokenizer)
-            self.text = TextEncoderSession(bundle.read_verified(graph.name), bundle.read_verified(tokenizer.name),
-                                           self.threads, names=(str(graph), str(tokenizer)))
+            self.text = TextEncoderSession(bundle.read_verified(te), bundle.read_verified(manifest.text_encoder.tokenizer),
+                                           self.threads, names=(str(bundle.path / te),
+                                                                str(bundle.path / manifest.text_encoder.tokenizer)))
         except ValueError as e:
             raise BundleError(str(e)) from None
         if self.text.dim != self.dims.text_dim or self.text.settings.max_length != manifest.text_encoder.max_length:
-            raise BundleError(f"{bundle.graph_file('text_encoder', variant)}: embeds to {self.text.dim} values and "
+            raise BundleError(f"{bundle.graph_path('text_encoder', variant)}: embeds to {self.text.dim} values and "
                               f"cuts at {self.text.settings.max_length} tokens; manifest model.text_dim is "
                               f"{self.dims.text_dim}, text_encoder.max_length {manifest.text_encoder.max_length}")
         opts = session_options(self.threads)
         sessions = {graph: bundle.session(graph, variant, opts) for graph in ("step", "lookup", "decoder")}
         self.step_session, self.lookup_session, self.decoder_session = (sessions[g] for g in ("step", "lookup",
                                                                                                 "decoder"))
-        # the sessions we run are the ones checked against the manifest (Bundle.load may skip its own check)
+        # the sessions we run are the ones checked against the manifest (Bundle.load for a variant does not)
         for graph, sess in (("text_encoder", self.text.session), *sessions.items()):
-            bundle.check_session(graph, bundle.graph_file(graph, variant), sess, variant)
+            bundle.check_session(graph, sess, variant)
         self.past_names = manifest.past_names
         self.output_names = ["logits", *manifest.present_names]
         self.cache_heads = self.dims.num_levels * self.dims.n_heads   # [rows, L * n_heads, past, head_dim]
 
     def encode_text(self, texts: list[str]) -> np.ndarray:
+        if "text_encoder" in self.one_row:
+            return np.concatenate([self._finite("text_encoder", self.text.encode([t])) for t in texts])
         return self._finite("text_encoder", self.text.encode(texts))           # (B, text_dim)
 
-    def empty_past(self, rows: int) -> list[np.ndarray]:
-        empty = np.zeros((rows, self.cache_heads, 0, self.dims.head_dim), np.float32)
-        return [empty] * len(self.past_names)
+    def empty_past(self, rows: int) -> list:
+        empty = [np.zeros((1 if "step" in self.one_row else rows, self.cache_heads, 0, self.dims.head_dim),
+                          np.float32)] * len(self.past_names)
+        return [empty] * rows if "step" in self.one_row else empty
 
-    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: list[np.ndarray]):
+    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: list):
+        """-> (logits (B, S, L, K + 1), the next past)."""
+        if "step" in self.one_row:
+            outs = [self._step(text_emb[r:r + 1], tokens[r:r + 1], past[r]) for r in range(len(tokens))]
+            return np.concatenate([logits for logits, _ in outs]), [presents for _, presents in outs]
+        return self._step(text_emb, tokens, past)
+
+    def _step(self, text_emb: np.ndarray, tokens: np.ndarray, past: list[np.ndarray]):
         feed = {"text_embedding": np.ascontiguousarray(text_emb, dtype=np.float32),
                 "tokens": np.ascontiguousarray(tokens, dtype=np.int64), **dict(zip(self.past_names, past))}
         out = self.step_session.run(self.output_names, feed)
         return self._finite("step", out[0]), out[1:]                            # logits (B, S, L, K + 1), presents
 
-    def lookup(self, tokens: np.ndarray) -> np.ndarray:
-        (latent,) = self.lookup_session.run(["latent"], {"tokens": np.ascontiguousarray(tokens, dtype=np.int64)})
-        return self._finite("lookup", latent)                                   # (B, T, latent_dim)
-
     def decode(self, tokens: np.ndarray) -> np.ndarray:
-        (features,) = self.decoder_session.run(["features"], {"latent": self.lookup(tokens)})
+        """Codebook lookup + causal decoder: (B, T, L) tokens -> de-normalised features (B, T * downsample, D)."""
+        if self.one_row & {"lookup", "decoder"}:
+            return np.concatenate([self._decode(tokens[r:r + 1]) for r in range(len(tokens))])
+        return self._decode(tokens)
+
+    def _decode(self, tokens: np.ndarray) -> np.ndarray:
+        (latent,) = self.lookup_session.run(["latent"], {"tokens": np.ascontiguousarray(tokens, dtype=np.int64)})
+        (features,) = self.decoder_session.run(["features"], {"latent": self._finite("lookup", latent)})
         want = (len(tokens), tokens.shape[1] * self.dims.downsample, self.dims.feature_dim)
         if features.shape != want:   # a wrong model.downsample would otherwise drop or invent frames silently
-            raise BundleError(f"{self.bundle.graph_file('decoder', self.variant)}: decoded {tokens.shape[1]} tokens "
+            raise BundleError(f"{self.bundle.graph_path('decoder', self.variant)}: decoded {tokens.shape[1]} tokens "
                               f"to {features.shape[1:]} frames x features; manifest model.downsample "
                               f"{self.dims.downsample} and model.feature_dim {self.dims.feature_dim} promise {want[1:]}")
         return self._finite("decoder", features)                                # (B, T * downsample, D)
@@ -96,7 +114,7 @@ class OrtBackend:
         """`out`, or NonFiniteOutput naming the graph: NaN or inf must never reach a motion, a file or a stream
         (a present cache is not checked: its NaN shows in the next step's logits). Costs microseconds a call."""
         if not np.isfinite(out).all():
-            raise NonFiniteOutput(f"{self.bundle.graph_file(graph, self.variant)}: the {graph} graph produced NaN or "
+            raise NonFiniteOutput(f"{self.bundle.graph_path(graph, self.variant)}: the {graph} graph produced NaN or "
                                   f"inf ({int((~np.isfinite(out)).sum())} of {out.size} values); the bundle is "
                                   f"broken (its weights or its export)")
         return out
@@ -104,8 +122,8 @@ class OrtBackend:
 
 @dataclass(frozen=True)
 class FixedCache:
-    """The portable step's cache: per layer key and value [rows, L * n_heads, capacity, head_dim] as the last
-    step returned them, and how many of the slots hold steps (the next step writes slot `length`)."""
+    """The portable step's cache: per layer key and value [rows, L * n_heads, capacity, head_dim], written in place
+    by every step, and how many of the slots hold steps (the next step writes slot `length`)."""
 
     arrays: list[np.ndarray]
     length: int
@@ -113,10 +131,12 @@ class FixedCache:
 
 class FixedCacheBackend(OrtBackend):
     """The portable variant: its step graph takes one time step per call and a cache of fixed capacity, written at
-    the `position` input and returned whole (docs/bundle.md, "The portable variant").
+    the `position` input and returned whole (docs/bundle.md, "The portable variant"). Its step graph is never run a
+    row per call (portable is fp32, int8_fixed's step per-row int8), so rows at different positions share a call.
 
     Same `Backend` as OrtBackend, so the loop runs unchanged: `step` on S tokens (a context rebuild) makes S calls,
-    one per token, and a cache that would overflow its capacity is an error, not a silent overwrite.
+    one per token, each writing its slot into the cache in place; a cache that would overflow its capacity is an
+    error, not a silent overwrite.
     """
 
     def __init__(self, bundle: Bundle, variant: str = "portable", threads: int = 1):
@@ -124,58 +144,42 @@ class FixedCacheBackend(OrtBackend):
         if not bundle.manifest.fixed_cache(variant):
             raise ValueError(f"variant {variant!r} of {bundle.path} has the dynamic step graph: use OrtBackend")
         self.capacity = bundle.manifest.portable.capacity
+        self.cache_shape = (self.cache_heads, self.capacity, self.dims.head_dim)   # per row
 
     def empty_past(self, rows: int) -> FixedCache:
-        zeros = np.zeros((rows, self.cache_heads, self.capacity, self.dims.head_dim), np.float32)
-        return FixedCache([zeros] * len(self.past_names), 0)                   # read only: one buffer serves all
+        return FixedCache([np.zeros((rows,) + self.cache_shape, np.float32) for _ in self.past_names], 0)
 
     def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: FixedCache):
+        """-> (logits (B, S, L, K + 1), the past one step on). `past`'s arrays are written in place."""
         rows, steps = tokens.shape[:2]
         if past.length + steps > self.capacity:
             raise ValueError(f"the portable step's cache holds {self.capacity} steps; {past.length} are cached and "
                              f"{steps} more were fed (the manifest's portable.capacity covers the generation loop)")
-        text_emb = np.ascontiguousarray(text_emb, dtype=np.float32)
-        tokens = np.asarray(tokens, dtype=np.int64)
-        cache, logits = past.arrays, []
-        for s in range(steps):
-            feed = {"text_embedding": text_emb, "tokens": np.ascontiguousarray(tokens[:, s:s + 1]),
-                    "position": np.full(rows, past.length + s, np.int64), **dict(zip(self.past_names, cache))}
-            out = self.step_session.run(self.output_names, feed)
-            logits.append(self._finite("step", out[0]))                         # (rows, 1, L, K + 1)
-            cache = out[1:]
-        return np.concatenate(logits, axis=1), FixedCache(cache, past.length + steps)
+        logits = [self.step_in_place(text_emb, tokens[:, s], np.full(rows, past.length + s, np.int64), past.arrays)
+                  for s in range(steps)]
+        return np.concatenate(logits, axis=1), FixedCache(past.arrays, past.length + steps)
 
+    def step_in_place(self, text_emb: np.ndarray, tokens: np.ndarray, position: np.ndarray,
+                      cache: list[np.ndarray]) -> np.ndarray:
+        """One call: tokens (rows, L) at cache slot `position` (rows,) -> logits (rows, 1, L, K + 1).
 
-class RowByRow:
-    """A backend whose chosen graphs run one row (one prompt, one guidance branch) per call.
-
-    Dynamic quantization scales activations by the range of the whole input tensor, so a quantized graph
-    gives a prompt different numbers depending on the other prompts in its batch (measured: int8 tokens parted
-    from a lone run's within 2-13 steps). Row by row, a prompt's motion depends on its seed alone, batched or
-    not. The step's cache is then one list of arrays per row.
-    """
-
-    def __init__(self, inner: OrtBackend, graphs: set[str]):
-        self.inner, self.graphs = inner, graphs
-        self.dims, self.variant, self.bundle, self.text = inner.dims, inner.variant, inner.bundle, inner.text
-
-    def encode_text(self, texts: list[str]) -> np.ndarray:
-        if "text_encoder" not in self.graphs:
-            return self.inner.encode_text(texts)
-        return np.concatenate([self.inner.encode_text([t]) for t in texts])
-
-    def empty_past(self, rows: int) -> list:
-        if "step" not in self.graphs:
-            return self.inner.empty_past(rows)
-        return [self.inner.empty_past(1) for _ in range(rows)]
-
-    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: list):
-        if "step" not in self.graphs:
-            return self.inner.step(text_emb, tokens, past)
-        outs = [self.inner.step(text_emb[r:r + 1], tokens[r:r + 1], past[r]) for r in range(len(tokens))]
-        return np.concatenate([logits for logits, _ in outs]), [presents for _, presents in outs]
-
-    def decode(self, tokens: np.ndarray) -> np.ndarray:
-        if not self.graphs & {"lookup", "decoder"}:
-            return self.inner.decode(tokens)
-        return np.concatenate([self.inner.decode(tokens[r:r + 1]) for r in range(len(tokens))])
+        Each cache array (rows, L * n_heads, capacity, head_dim), C-contiguous float32, is bound as both the past
+        and the present, so the graph's ScatterElements writes the new slot where it is instead of copying the
+        whole cache (that copy was half a step's time at batch 128 on base; the results are the same bits,
+        tests/runtime/test_crowd.py). Slots past `position` are masked out of attention: what an earlier context
+        left there changes nothing."""
+        binding = self.step_session.io_binding()
+        binding.bind_cpu_input("text_embedding", np.ascontiguousarray(text_emb, dtype=np.float32))
+        binding.bind_cpu_input("tokens", np.ascontiguousarray(tokens[:, None], dtype=np.int64))
+        binding.bind_cpu_input("position", np.ascontiguousarray(position, dtype=np.int64))
+        logits = np.empty((len(tokens), 1, self.dims.num_levels, self.dims.codebook_size + 1), np.float32)
+        # every output bound to our arrays: fetching outputs from the binding would copy the caches back
+        binding.bind_output("logits", "cpu", 0, np.float32, list(logits.shape), logits.ctypes.data)
+        for past, present, array in zip(self.past_names, self.output_names[1:], cache):
+            if array.dtype != np.float32 or not array.flags.c_contiguous or array.shape[1:] != self.cache_shape:
+                raise ValueError(f"a fixed cache array is C-contiguous float32 (rows, {self.cache_shape}), got "
+                                 f"{array.dtype} {array.shape}")
+            binding.bind_cpu_input(past, array)
+            binding.bind_output(present, "cpu", 0, np.float32, list(array.shape), array.ctypes.data)
+        self.step_session.run_with_iobinding(binding)
+        return self._finite("step", logits)

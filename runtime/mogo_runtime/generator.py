@@ -23,11 +23,14 @@ from typing import TYPE_CHECKING, Callable, Iterator
 
 import numpy as np
 
-from .bundle import Bundle
-from .decoding import GenerationTask, expand_seeds
+from .bundle.folder import Bundle
+from .bundle.sampling import SamplingConfig
+from .checks import as_real
+from .clock import NO_CLOCK, StageClock
+from .decoding import Frames, Generated, GenerationTask
 from .engine import open_backend
-from .motion import Motion
-from .sampling import SamplingConfig, as_real
+from .outputs.motion import Motion
+from .policy import expand_seeds
 from .text import check_texts, check_threads
 
 MAX_SECONDS = 3600.0   # the longest fixed length on an endless bundle: tokens and frames are kept for the whole motion
@@ -51,13 +54,15 @@ SWITCH_HISTORY = 10_000   # ~1 MB of prompt switches kept per stream (a switch e
 
 class FrameStream:
     """What `MotionGenerator.stream` returns: an iterator of Frames, the prompt it follows now and its aligned
-    text, and, on a bundle trained for endless streams, `set_prompt` to change what the character does."""
+    text, and, on a bundle trained for endless streams, `set_prompt` to change what the character does.
 
-    def __init__(self, gen: "MotionGenerator", task: GenerationTask, emb: np.ndarray, seed: int, chunk: int,
-                 text: str, aligned_text: str | None):
-        self._gen, self.text, self.aligned_text = gen, text, aligned_text
+    `condition(texts, align)` -> (embeddings, aligned texts) is how the generator conditions on a prompt."""
+
+    def __init__(self, task: GenerationTask, emb: np.ndarray, seed: int, chunk: int, text: str,
+                 aligned_text: str | None, condition: Callable):
+        self.text, self.aligned_text, self._condition = text, aligned_text, condition
         self._loop = task.loop(emb, [seed]) if task.streaming is not None else None
-        self._frames = gen._frames(task.stream(emb, seed, chunk, self._loop))
+        self._frames = _frames(task.stream(emb, seed, chunk, self._loop), task.backend.dims.fps)
         # (token, text, aligned text) of the last SWITCH_HISTORY set_prompt calls: a stream runs for days
         self.switches: deque[tuple[int, str, str | None]] = deque(maxlen=SWITCH_HISTORY)
 
@@ -72,6 +77,11 @@ class FrameStream:
         """Tokens sampled so far (frames lag behind by the decoding chunk)."""
         return self._loop.count if self._loop is not None else 0
 
+    @property
+    def restarts(self) -> int:
+        """How often the model ended the motion and the prompt started again (endless streams; else 0)."""
+        return self._loop.restarts if self._loop is not None else 0
+
     def set_prompt(self, text: str, align: bool | Aligner = False) -> None:
         """Follow `text` from the next token on (the frames already decoded are not changed)."""
         if self._loop is None:
@@ -79,13 +89,19 @@ class FrameStream:
                              "section), so its streams cannot change prompt")
         if not isinstance(text, str):
             raise ValueError(f"set_prompt() takes one prompt (str), got {type(text).__name__}")
-        emb, aligned = self._gen._condition(check_texts([text]), align)
+        emb, aligned = self._condition(check_texts([text]), align)
         self._loop.set_prompt(emb)
         self.text, self.aligned_text = text, aligned[0]
         self.switches.append((self._loop.count, text, aligned[0]))
 
     def close(self) -> None:
         self._frames.close()
+
+
+def _frames(chunks: Iterator[Frames], fps: float) -> Iterator[Frame]:
+    for chunk in chunks:
+        for i, (f, j) in enumerate(zip(chunk.features, chunk.joints), chunk.index):
+            yield Frame(index=i, time=i / fps, features=f, joints=j)
 
 
 class MotionGenerator:
@@ -97,13 +113,11 @@ class MotionGenerator:
 
     def __init__(self, bundle: Bundle | str | Path, variant: str = "fp32", threads: int = 1,
                  aligner: Aligner | None = None):
-        # Only the chosen variant's files are hashed and checked: an int8 run never reads the fp32 text encoder.
-        # The backend checks the sessions it opens against the manifest, so loading skips its own graph check.
+        # Only the chosen variant's files are read, each hashed once as it is read (Bundle.load).
         if not isinstance(variant, str) or not variant:
             raise ValueError(f"variant must be a variant name such as 'fp32', 'int8' or 'portable', got {variant!r}")
         check_threads(threads)     # before the bundle is read and hashed
-        self.bundle = (bundle if isinstance(bundle, Bundle) else
-                       Bundle.load(bundle, variants=[variant], check_graphs=False, hash_graphs_on_open=True))
+        self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle, variant)
         self.backend = open_backend(self.bundle, variant, threads)
         self.variant, self.dims, self.skeleton = variant, self.bundle.dims, self.bundle.skeleton
         self.max_tokens, self.max_seconds = self.dims.max_tokens, self.dims.max_seconds
@@ -130,7 +144,8 @@ class MotionGenerator:
 
     def generate(self, text: str | list[str] | list[tuple[str, float]], *, seconds: float | None = None,
                  seed: int | list[int] = 0, sampling: SamplingConfig | None = None, align: bool | Aligner = False,
-                 progress: Callable[[int, int], None] | None = None) -> Motion | list[Motion]:
+                 progress: Callable[[int, int], None] | None = None,
+                 clock: StageClock | None = None) -> Motion | list[Motion]:
         """One motion per prompt (a list for a list), all prompts in one batched loop.
 
         Prompt i of a list uses seed `seed + i` (or `seed[i]`), so it gets the motion a lone run with that
@@ -141,23 +156,22 @@ class MotionGenerator:
         `[(prompt, start_seconds), ...]` (starts from 0, increasing; `seconds` required) gives one motion that
         follows each prompt from its start. `sampling` None: the bundle's sampling defaults. `align=True` (or an
         Aligner) rewrites each prompt into the training captions' style first (TCA); the motion's
-        `aligned_text` says what the model was conditioned on. `progress(step, limit)` is called after every step.
+        `aligned_text` says what the model was conditioned on. `progress(step, limit)` is called after every step;
+        `clock` (a clock.StageClock) adds up the time of each stage of the loop.
         A prompt is Unicode text of at most `text.MAX_PROMPT_CHARS` (10,000) characters (ValueError otherwise).
         """
         if not isinstance(text, (str, list, tuple)):
             raise ValueError(f"text must be a prompt (str), a list of prompts or a timeline [(prompt, start_seconds), "
                              f"...], got {type(text).__name__}")
         if isinstance(text, (list, tuple)) and text and all(isinstance(t, tuple) for t in text):
-            return self._timeline(list(text), seconds, seed, sampling, align, progress)
+            return self._timeline(list(text), seconds, seed, sampling, align, progress, clock)
         texts = check_texts([text] if isinstance(text, str) else text)
-        task, emb, seeds, aligned = self._prepare(texts, seconds, seed, sampling, align)
+        task, emb, seeds, aligned = self._prepare(texts, seconds, seed, sampling, align, clock)
         results = task.run(emb, seeds, progress)
-        motions = [Motion(text=t, features=r.features, joints=r.joints, fps=self.dims.fps, tokens=r.tokens,
-                          skeleton=self.skeleton, seed=s, aligned_text=a)
-                   for t, r, s, a in zip(texts, results, seeds, aligned)]
+        motions = [self._motion(t, r, s, a) for t, r, s, a in zip(texts, results, seeds, aligned)]
         return motions[0] if isinstance(text, str) else motions
 
-    def _timeline(self, timeline, seconds, seed, sampling, align, progress) -> Motion:
+    def _timeline(self, timeline, seconds, seed, sampling, align, progress, clock) -> Motion:
         if seconds is None:
             raise ValueError("a timeline needs seconds=, the length of the whole motion")
         if not all(len(item) == 2 and isinstance(item[0], str) for item in timeline):
@@ -169,11 +183,13 @@ class MotionGenerator:
             raise ValueError(f"timeline starts must begin at 0 and increase, each before the end ({seconds} s); got "
                              f"{[t for _, t in timeline]}")
         task, emb, seeds, aligned = self._prepare(texts, seconds, [expand_seeds(seed, 1)[0]] * len(texts),
-                                                  sampling, align)
+                                                  sampling, align, clock)
         r = task.timeline(emb, starts, seeds[0], progress)
-        return Motion(text=" | ".join(texts), features=r.features, joints=r.joints, fps=self.dims.fps,
-                      tokens=r.tokens, skeleton=self.skeleton, seed=seeds[0],
-                      aligned_text=None if aligned[0] is None else " | ".join(aligned))
+        return self._motion(" | ".join(texts), r, seeds[0], None if aligned[0] is None else " | ".join(aligned))
+
+    def _motion(self, text: str, r: Generated, seed: int, aligned: str | None) -> Motion:
+        return Motion(text=text, features=r.features, joints=r.joints, fps=self.dims.fps, tokens=r.tokens,
+                      skeleton=self.skeleton, seed=seed, aligned_text=aligned)
 
     def stream(self, text: str, *, seconds: float | None = None, seed: int = 0,
                sampling: SamplingConfig | None = None, align: bool | Aligner = False, chunk: int = 4) -> FrameStream:
@@ -182,7 +198,7 @@ class MotionGenerator:
         On a bundle trained for endless streams (`endless`) the stream has no end unless `seconds` is given, and
         `set_prompt` on it changes the prompt from the next token; `close()` ends it. Otherwise the model ends
         the motion, at most `max_seconds`. The first token's frames come at once; after that frames come `chunk`
-        tokens at a time (chunk=1: every token, at ~1.6x the decoding work; see decoding.FrameStreamer). The
+        tokens at a time (chunk=1: every token, at ~1.6x the decoding work; see decoding.FrameMaker). The
         causal decoder makes them equal to `generate(text, seconds=..., seed=seed)`'s frames (to float
         rounding). Arguments are checked, and the prompt aligned, when this is called, before the first frame
         is asked for; the returned stream's `aligned_text` says what the model follows.
@@ -190,16 +206,9 @@ class MotionGenerator:
         if not isinstance(text, str):
             raise ValueError(f"stream() takes one prompt (str), got {type(text).__name__}; use generate() for a batch")
         task, emb, seeds, aligned = self._prepare(check_texts([text]), seconds, seed, sampling, align)
-        return FrameStream(self, task, emb, seeds[0], chunk, text, aligned[0])
+        return FrameStream(task, emb, seeds[0], chunk, text, aligned[0], self._condition)
 
-    def _frames(self, chunks) -> Iterator[Frame]:
-        index = 0
-        for features, joints in chunks:
-            for f, j in zip(features, joints):
-                yield Frame(index=index, time=index / self.dims.fps, features=f, joints=j)
-                index += 1
-
-    def _prepare(self, texts: list[str], seconds, seed, sampling, align):
+    def _prepare(self, texts: list[str], seconds, seed, sampling, align, clock=None):
         """What generate and stream share: checked arguments, the task, conditioning and seeds."""
         fixed = self.tokens_for(seconds)
         if sampling is None:
@@ -207,8 +216,11 @@ class MotionGenerator:
         elif not isinstance(sampling, SamplingConfig):
             raise ValueError(f"sampling must be a SamplingConfig or None (the bundle's defaults), got {sampling!r}")
         seeds = expand_seeds(seed, len(texts))
-        emb, aligned = self._condition(texts, align)
-        task = GenerationTask(self.backend, sampling, self.max_tokens, fixed, self.bundle.manifest.streaming)
+        clock = clock or NO_CLOCK
+        with clock("text"):
+            emb, aligned = self._condition(texts, align)
+        task = GenerationTask(self.backend, self.skeleton, sampling, self.max_tokens, fixed,
+                              self.bundle.manifest.streaming, clock)
         return task, emb, seeds, aligned
 
     def _condition(self, texts: list[str], align) -> tuple[np.ndarray, list[str | None]]:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from tokenizers import Tokenizer
 
-from .sampling import as_int
+from .checks import as_int
 
 # The encoder reads a prompt's first max_length tokens (a few hundred words) and drops the rest, but the tokenizer
 # and the aligner work on all of it first: a 10 MB prompt took 36 s and 5 GB before being cut (CJK text, one token

@@ -10,7 +10,7 @@ from mogo_export.data.dataset import MotionDataset
 from mogo_export.export.caption_index import build_caption_index, tca_manifest_section, training_captions
 from mogo_export.models.text_encoder import get_text_encoder
 from mogo_runtime import Bundle, MotionGenerator
-from mogo_runtime.bundle import sha256_file
+from mogo_runtime.bundle.folder import sha256_file
 from mogo_runtime.tca import CaptionIndex, OfflineAligner
 from mogo_runtime.text import TextEncoderSession
 
@@ -64,7 +64,7 @@ def test_a_bundle_with_the_index_aligns_prompts(tmp_path, data, encoder, tiny_bu
     shutil.copytree(tiny_bundle, bundle_dir)
     facts = build_caption_index(data, encoder, bundle_dir / "captions.npz")
     manifest = json.loads((bundle_dir / "manifest.json").read_text())
-    manifest["tca"] = tca_manifest_section(facts)
+    manifest["tca"] = tca_manifest_section(facts).to_dict()
     manifest["files"]["captions.npz"] = {"bytes": facts["bytes"], "sha256": sha256_file(bundle_dir / "captions.npz")}
     (bundle_dir / "manifest.json").write_text(json.dumps(manifest))
     assert set(manifest["tca"]) >= {"file", "count", "dtype", "encoder", "lexical_weight", "split_margin"}

@@ -12,7 +12,8 @@ from random_tiny import random_tiny_bundle
 
 from mogo_export.export.bundle import export_bundle
 from mogo_export.export.graphs import DecoderGraph, StepGraph
-from mogo_runtime.bundle import Bundle, BundleError
+from mogo_runtime.bundle.folder import Bundle
+from mogo_runtime.bundle.sections import BundleError
 
 FP32_BAR = 1e-4
 
@@ -122,7 +123,7 @@ def test_a_manifest_that_misdescribes_a_graph_is_refused_by_load_and_by_the_gene
     with pytest.raises(BundleError, match=r"decoder.onnx: output 'features' has type tensor\(float\), manifest "
                                           r"says float16"):
         Bundle.load(copy)
-    for variant in ("fp32", "int8"):  # loads with check_graphs=False: its own sessions are what get checked
+    for variant in ("fp32", "int8"):  # loads for one variant: its own sessions are what get checked
         with pytest.raises(BundleError, match=r"decoder.onnx: output 'features' has type"):
             MotionGenerator(copy, variant=variant)
 

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 from mogo_export.data.humanml3d import canonicalize, extract_features, gaussian_filter1d
-from mogo_runtime.features import FeatureLayout, recover_from_ric, recover_root_rot_pos
-from mogo_runtime.quaternion import qinv, qrot
-from mogo_runtime.skeleton import HUMANML3D, KIT
+from mogo_runtime.kinematics.features import FeatureLayout, recover_from_ric, recover_root_rot_pos
+from mogo_runtime.kinematics.quaternion import qinv, qrot
+from mogo_runtime.kinematics.skeleton import HUMANML3D, KIT
 
 LAYOUT = FeatureLayout(22)
 ROOT = slice(0, 4)

@@ -7,7 +7,7 @@ import importlib.util
 from conftest import ROOT
 from mogo_export.reference import TorchGenerator
 from mogo_runtime import MotionGenerator
-from mogo_runtime.sampling import SamplingConfig
+from mogo_runtime.bundle.sampling import SamplingConfig
 
 spec = importlib.util.spec_from_file_location("make_golden", ROOT / "tests" / "golden" / "make_golden.py")
 golden = importlib.util.module_from_spec(spec)

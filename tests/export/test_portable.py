@@ -18,8 +18,8 @@ from mogo_export.export.bundle import export_bundle
 from mogo_export.export.graphs import StepGraph
 from mogo_export.export.opset import LOWEST_OPSET, LOWEST_STEP_OPSET, portable_problems, to_opset
 from mogo_export.export.portable import FixedCacheStepGraph
-from mogo_runtime.bundle import Bundle, BundleError
-from mogo_runtime.manifest import PORTABLE_OPSET, required_capacity
+from mogo_runtime.bundle import Bundle, BundleError, read_manifest
+from mogo_runtime.bundle.sections import PORTABLE_OPSET, required_capacity
 
 FP32_BAR = 1e-4
 GRAPHS = ("text_encoder", "step", "lookup", "decoder")
@@ -71,7 +71,7 @@ def test_the_fixed_cache_step_is_the_torch_step_over_the_first_position_slots(ti
     """The graph's logits and written slot equal the torch step whose past is the cache's first `position` slots;
     the slots after it come back unchanged (the tiny model clips distances at 8: 11 and 24 are past the clip)."""
     tr = tiny["tr"]
-    manifest = Bundle.load(tiny["bundle"], check_graphs=False).manifest
+    manifest = read_manifest(tiny["bundle"])
     cap = manifest.portable.capacity
     text, tokens, cache = portable_feed(tr, cap, batch, position, seed=batch * 100 + position)
     with torch.no_grad():
@@ -93,7 +93,7 @@ def test_the_fixed_cache_step_is_the_torch_step_over_the_first_position_slots(ti
 
 def test_a_position_past_the_capacity_is_an_error_not_a_lost_write(tiny):
     tr = tiny["tr"]
-    manifest = Bundle.load(tiny["bundle"], check_graphs=False).manifest
+    manifest = read_manifest(tiny["bundle"])
     cap = manifest.portable.capacity
     text, tokens, cache = portable_feed(tr, cap, 1, 0, seed=0)
     feed = {"text_embedding": text.numpy(), "tokens": tokens.numpy(), "position": np.array([cap]),
@@ -117,14 +117,14 @@ def test_the_portable_graphs_follow_the_rules_and_the_manifest_gives_every_size(
         assert spec["shape"][0] == "batch" and all(isinstance(d, int) for d in spec["shape"][1:]), spec
     assert [s["name"] for s in step["inputs"][:3]] == ["text_embedding", "tokens", "position"]
     # the dynamic step (opset 20, int8 ops in its int8 file) is not portable: the rules would say why
-    assert portable_problems(onnx.load(str(bundle.graph_file("step", "int8"))), PORTABLE_OPSET)
+    assert portable_problems(onnx.load(str(bundle.graph_path("step", "int8"))), PORTABLE_OPSET)
 
 
 def test_every_portable_graph_runs_at_the_lowest_opset_and_one_lower_fails(tiny):
     """What the exporter can produce below 17 (mogo_export/export/opset.py): LayerNormalization rewritten, then
     onnx.version_converter. The step and the lookup go to 14, the decoder (Shape-15 on its dynamic sizes) to 15, so
     the variant as a whole to 15; no graph to 13 (Add-14). The outputs stay those of the opset-17 graph."""
-    bundle = Bundle.load(tiny["bundle"], check_graphs=False)
+    bundle = Bundle.load(tiny["bundle"])
     rng = np.random.default_rng(0)
     lowest = {}
     for graph in GRAPHS:

@@ -13,8 +13,8 @@ from mogo_export.data.procedural import captions, clips as C, families, locomoti
 from mogo_export.data.procedural.action import FULL_BUDGET, TimeBudget
 from mogo_export.data.procedural.grounding import pose_to_joints
 from mogo_export.data.procedural.pose import FPS, MAX_SECONDS, Pose
-from mogo_runtime.features import FeatureLayout, recover_from_ric
-from mogo_runtime.skeleton import HUMANML3D
+from mogo_runtime.kinematics.features import FeatureLayout, recover_from_ric
+from mogo_runtime.kinematics.skeleton import HUMANML3D
 
 FAMILIES = list(families.FAMILIES)
 FEET = [7, 10, 8, 11]  # left ankle, left toe, right ankle, right toe (HumanML3D's contact joints)

@@ -84,7 +84,7 @@ def test_verifier_passes_on_the_tiny_bundle(tiny_bundle, tiny_checkpoints):
 
 
 def test_teacher_forced_agreement_counts_argmax_changes(tiny_bundle):
-    from mogo_runtime.bundle import Bundle
+    from mogo_runtime.bundle.folder import Bundle
     from mogo_runtime.engine import OrtBackend
     from mogo_export.verify import PROMPTS, _ort_tokens, _teacher_forced
 

@@ -49,7 +49,7 @@ def cases(variants: list[str]) -> list[dict]:
 
 def run_case(generators: dict, case: dict) -> list[list[list[int]]]:
     """-> one token list (T, L) per motion of the case."""
-    from mogo_runtime.sampling import SamplingConfig
+    from mogo_runtime.bundle.sampling import SamplingConfig
 
     text = case["text"]
     if isinstance(text, list) and isinstance(text[0], list):

@@ -5,8 +5,8 @@ import bvhio
 import numpy as np
 import pytest
 
-from mogo_runtime.bvh import joints_to_bvh_text, rest_offsets, write_bvh
-from mogo_runtime.skeleton import HUMANML3D, KIT
+from mogo_runtime.kinematics.skeleton import HUMANML3D, KIT
+from mogo_runtime.outputs.bvh import joints_to_bvh_text, rest_offsets, write_bvh
 
 TOL_M = 1e-3  # 1 mm on every joint and frame
 

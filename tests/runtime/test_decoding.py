@@ -2,13 +2,14 @@
 import numpy as np
 import pytest
 
-from mogo_runtime.decoding import (FrameStreamer, collect_tokens, decode_tokens, expand_seeds, generate_tokens,
-                                   make_rngs)
-from mogo_runtime.manifest import ModelDims
-from mogo_runtime.sampling import SamplingConfig, sample
+from mogo_runtime import SamplingConfig
+from mogo_runtime.bundle.sections import ModelDims
+from mogo_runtime.decoding import FrameMaker, collect_tokens, decode_tokens, generate_tokens
+from mogo_runtime.kinematics.skeleton import HUMANML3D
+from mogo_runtime.policy import expand_seeds, make_rngs, sample
 
 DIMS = ModelDims(num_levels=3, codebook_size=7, n_layers=1, n_heads=1, head_dim=4, text_dim=5, max_rel_dist=8,
-                 downsample=2, fps=20.0, receptive_field=2, feature_dim=4, latent_dim=4, max_tokens=12)
+                 downsample=2, fps=20.0, receptive_field=2, feature_dim=263, latent_dim=4, max_tokens=12)
 
 
 def rngs_for(seed, batch):
@@ -105,20 +106,26 @@ def test_guidance_runs_an_unconditional_branch_with_zero_text():
     backend = ToyBackend()
     emb = np.ones((2, DIMS.text_dim), np.float32)
     run(backend, emb, SamplingConfig(temperature=0.0, guidance=2.0), 0, max_tokens=3)
-    seen = backend.rows_seen[0]
-    assert seen.shape == (4, DIMS.text_dim) and np.all(seen[2:] == 0) and np.all(seen[:2] == 1)
+    seen = backend.rows_seen[0]                       # each prompt's row, then its unconditional row
+    assert seen.shape == (4, DIMS.text_dim) and np.all(seen[1::2] == 0) and np.all(seen[0::2] == 1)
+
+
+def frames_of(backend, maker, n):
+    """The features of the frames `maker` has due, decoded from its window of n tokens (nothing when n is 0)."""
+    if not n:
+        return np.zeros((0, DIMS.feature_dim), np.float32)
+    return maker.frames_from(backend.decode(maker.window(n)[None])[0]).features
 
 
 def test_streamed_frames_equal_offline_decode():
     backend = ToyBackend(end_at=[7, 10])
     emb = np.random.default_rng(3).normal(size=(2, DIMS.text_dim)).astype(np.float32)
     rngs = rngs_for(9, 2)
-    streamer = FrameStreamer(backend, 2)
+    makers = [FrameMaker(DIMS, HUMANML3D, 1) for _ in range(2)]
     frames = [[], []]
     for picked, alive in generate_tokens(backend, emb, SamplingConfig(temperature=1.0), rngs, max_tokens=12):
-        feats = streamer.push(picked)
         for b in np.flatnonzero(alive):
-            frames[b].append(feats[b])
+            frames[b].append(frames_of(backend, makers[b], makers[b].push(picked[b])))
     offline = decode_tokens(backend, run(ToyBackend(end_at=[7, 10]), emb, SamplingConfig(temperature=1.0), 9))
     for b in range(2):
         assert np.allclose(np.concatenate(frames[b]), offline[b], atol=1e-6)
@@ -128,24 +135,25 @@ def test_streamed_frames_equal_offline_decode():
 def test_chunked_streaming_returns_every_frame_once_and_exactly(chunk):
     backend = ToyBackend(end_at=[9])
     emb = np.random.default_rng(4).normal(size=(1, DIMS.text_dim)).astype(np.float32)
-    streamer = FrameStreamer(backend, 1, chunk)
+    maker = FrameMaker(DIMS, HUMANML3D, chunk)
     pieces, ready_after = [], []
     for picked, alive in generate_tokens(backend, emb, SamplingConfig(temperature=1.0), rngs_for(5, 1), 12):
         if not alive[0]:
             break
-        pieces.append(streamer.push(picked)[0])
+        pieces.append(frames_of(backend, maker, maker.push(picked[0])))
         ready_after.append(len(pieces[-1]) // DIMS.downsample)
-    pieces.append(streamer.flush()[0])
-    assert len(streamer.flush()[0]) == 0  # nothing is returned twice
+    pieces.append(frames_of(backend, maker, maker.due(final=True)))
+    assert maker.due(final=True) == 0  # nothing is returned twice
     offline = decode_tokens(backend, run(ToyBackend(end_at=[9]), emb, SamplingConfig(temperature=1.0), 5))[0]
     np.testing.assert_allclose(np.concatenate(pieces), offline, atol=1e-6)
     assert ready_after[0] == 1  # the first token's frames come at once
     assert all(n in (0, chunk) for n in ready_after[1:])
+    assert maker.frames == len(offline)
 
 
 def test_bad_chunk_is_refused():
     with pytest.raises(ValueError, match="chunk"):
-        FrameStreamer(ToyBackend(), 1, 0)
+        FrameMaker(DIMS, HUMANML3D, 0)
 
 
 def test_bad_sampling_options_are_refused():

@@ -11,13 +11,16 @@ import numpy as np
 import pytest
 from toy_bundle import REFRESH, WINDOW, build_toy_bundle, toy_bundle  # noqa: F401  (a fixture)
 
-from mogo_runtime import MotionGenerator
-from mogo_runtime.decoding import EndlessLoop, GenerationTask, expand_seeds, generate_tokens, make_rngs
+from mogo_runtime import MotionGenerator, SamplingConfig
+from mogo_runtime.bundle.sections import StreamingSpec
+from mogo_runtime.decoding import GenerationTask, generate_tokens
+from mogo_runtime.endless import EndlessLoop
 from mogo_runtime.engine import OrtBackend
-from mogo_runtime.sampling import SamplingConfig
+from mogo_runtime.policy import expand_seeds, make_rngs
 
 WALK, JUMP = "a person walks forward", "a person jumps twice"
 CIRCLE = "a person walks in a circle"          # the toy model ends it late (24 tokens greedy), the others soon
+SPEC = StreamingSpec(WINDOW, REFRESH)
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +69,7 @@ def rebuilt(call, dims) -> bool:
 
 def test_the_context_is_rebuilt_and_stays_bounded(toy_bundle):  # noqa: F811
     backend = Recorded(OrtBackend(MotionGenerator(toy_bundle).bundle), {"all": -1e9})    # a model that never ends
-    loop = EndlessLoop(backend, backend.encode_text([WALK]), SamplingConfig(), [0], WINDOW, REFRESH)
+    loop = EndlessLoop(backend, backend.encode_text([WALK]), SamplingConfig(), [0], SPEC)
     for _ in range(200):
         loop.step()
     lengths = [past + tokens.shape[1] for tokens, past in backend.calls]
@@ -90,7 +93,7 @@ def test_the_loop_equals_generate_tokens_until_its_first_end_or_refresh(gen):
         for sampling in (SamplingConfig(temperature=0.0), SamplingConfig(temperature=1.0, top_p=0.9),
                          SamplingConfig(guidance=2.0)):
             want = [p for p, alive in generate_tokens(backend, emb, sampling, make_rngs([seed]), 64) if alive[0]]
-            loop = EndlessLoop(backend, emb, sampling, [seed], WINDOW, REFRESH)
+            loop = EndlessLoop(backend, emb, sampling, [seed], SPEC)
             got = [loop.step() for _ in range(len(want) + 3)]
             same = min(len(want), WINDOW + REFRESH + 1)                  # then a refresh keeps only `window`
             assert all(np.array_equal(w, g) for w, g in zip(want[:same], got))
@@ -103,24 +106,22 @@ def test_the_loop_equals_generate_tokens_until_its_first_end_or_refresh(gen):
 def test_end_restarts_the_prompt_with_nothing_kept(toy_bundle):  # noqa: F811
     # call 6 picks END (after 6 tokens): that call's draw is discarded, call 7 rebuilds [BOS] and picks again
     backend = Recorded(OrtBackend(MotionGenerator(toy_bundle).bundle), {"all": -1e9, 6: 1e9})
-    loop = EndlessLoop(backend, backend.encode_text([JUMP]), SamplingConfig(), [3], WINDOW, REFRESH)
+    loop = EndlessLoop(backend, backend.encode_text([JUMP]), SamplingConfig(), [3], SPEC)
     picked = [loop.step() for _ in range(12)]
     assert loop.restarts == 1 and len(backend.calls) == 13 and all(p[0, 0] != backend.dims.end_id for p in picked)
     assert [i for i, c in enumerate(backend.calls) if rebuilt(c, backend.dims)] == [0, 7]
     assert backend.calls[7][0].shape[1] == 1                          # nothing of the ended motion kept
     # after the restart the loop is a fresh motion of the same prompt, continuing the same random stream
     fresh = Recorded(backend.backend, {"all": -1e9})
-    rngs = make_rngs([3])
-    again = EndlessLoop(fresh, backend.encode_text([JUMP]), SamplingConfig(), [3], WINDOW, REFRESH)
-    again.rngs = rngs
+    again = EndlessLoop(fresh, backend.encode_text([JUMP]), SamplingConfig(), [3], SPEC)
     for _ in range(7):                                                # the 7 draws the first loop consumed
-        rngs[0].random(backend.dims.num_levels)
+        again.streams[0].rng.random(backend.dims.num_levels)
     assert all(np.array_equal(a, b) for a, b in zip(picked[6:], [again.step() for _ in range(6)]))
 
 
 def test_a_new_prompt_starts_from_nothing_kept(toy_bundle):  # noqa: F811
     backend = Recorded(OrtBackend(MotionGenerator(toy_bundle).bundle), {"all": -1e9})
-    loop = EndlessLoop(backend, backend.encode_text([WALK]), SamplingConfig(guidance=2.0), [3], WINDOW, REFRESH)
+    loop = EndlessLoop(backend, backend.encode_text([WALK]), SamplingConfig(guidance=2.0), [3], SPEC)
     for t in range(10):
         if t == 4:
             loop.set_prompt(backend.encode_text([JUMP]))
@@ -150,12 +151,14 @@ def test_set_prompt_takes_effect_at_the_next_token(gen):
 def test_a_timeline_is_a_stream_with_prompt_switches(gen):
     pt = per_token(gen)
     m = gen.generate([(WALK, 0.0), (JUMP, 10 * pt), (WALK, 25 * pt)], seconds=40 * pt, seed=2)
-    s = gen.stream(WALK, seed=2, chunk=1)
+    task = GenerationTask(gen.backend, gen.skeleton, gen.sampling_defaults, gen.max_tokens, None,
+                          gen.bundle.manifest.streaming)
+    loop = task.loop(gen.backend.encode_text([WALK]), [2])
     tokens = []
     for t in range(40):
         if t in (10, 25):
-            s.set_prompt(JUMP if t == 10 else WALK)
-        tokens.append(s._loop.step())
+            loop.set_prompt(gen.backend.encode_text([JUMP if t == 10 else WALK]))
+        tokens.append(loop.step())
     assert np.array_equal(m.tokens, np.concatenate(tokens)) and m.num_frames == 40 * gen.dims.downsample
     assert m.text == f"{WALK} | {JUMP} | {WALK}"
 
@@ -163,7 +166,7 @@ def test_a_timeline_is_a_stream_with_prompt_switches(gen):
 def test_long_fixed_lengths_and_batches(gen):
     m = gen.generate(WALK, seconds=600, seed=1)                        # a 10-minute motion in one call
     assert m.num_frames == 600 * gen.dims.fps and np.isfinite(m.joints).all()
-    task = GenerationTask(gen.backend, SamplingConfig(), gen.max_tokens, 3 * gen.max_tokens,
+    task = GenerationTask(gen.backend, gen.skeleton, SamplingConfig(), gen.max_tokens, 3 * gen.max_tokens,
                           gen.bundle.manifest.streaming)
     emb = gen.backend.encode_text([WALK, JUMP])
     batch = task.tokens(emb, expand_seeds(9, 2))

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from mogo_runtime.features import FeatureLayout, denormalize, load_mean_std, normalize, recover_from_ric
-from mogo_runtime.skeleton import HUMANML3D, KIT
+from mogo_runtime.kinematics.features import FeatureLayout, denormalize, load_mean_std, normalize, recover_from_ric
+from mogo_runtime.kinematics.skeleton import HUMANML3D, KIT
 
 
 @pytest.fixture(scope="module")

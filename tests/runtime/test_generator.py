@@ -12,10 +12,10 @@ import pytest
 from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
 
 from mogo_runtime import Bundle, Frame, Motion, MotionGenerator
-from mogo_runtime.features import recover_from_ric
-from mogo_runtime.motion import FootLock
-from mogo_runtime.engine import OrtBackend, RowByRow
-from mogo_runtime.sampling import GREEDY, SamplingConfig
+from mogo_runtime.bundle.sampling import GREEDY, SamplingConfig
+from mogo_runtime.engine import OrtBackend
+from mogo_runtime.kinematics.features import recover_from_ric
+from mogo_runtime.kinematics.frames import FootLock
 
 PROMPTS = ["a person walks forward", "a person waves left hand", "kicks twice", "runs and then sits down",
            "turns around"]
@@ -56,7 +56,7 @@ def test_a_motion_is_consistent(gen):
     assert m.features.shape == (T * ds, gen.dims.feature_dim) and m.features.dtype == np.float32
     assert m.joints.shape == (T * ds, gen.skeleton.num_joints, 3)
     assert np.isfinite(m.joints).all()
-    assert np.array_equal(m.joints, FootLock(gen.skeleton.num_joints).push(
+    assert np.array_equal(m.joints, FootLock(gen.skeleton).push(
         recover_from_ric(m.features, gen.skeleton.num_joints), m.features))
     assert m.fps == gen.dims.fps and m.seconds == pytest.approx(T * ds / gen.dims.fps)
     assert (m.text, m.seed, m.skeleton) == (PROMPTS[0], 3, gen.skeleton)
@@ -118,7 +118,7 @@ def test_stream_yields_before_the_motion_is_finished(gen):
         next(it)
         assert len(steps) == 1
         rest = list(it)
-        restarts = it._loop.restarts if it._loop is not None else 0     # an endless stream restarts at END
+        restarts = it.restarts                                        # an endless stream restarts at END
         assert len(steps) == 5 + restarts and len(rest) == 5 * gen.dims.downsample - 1
     finally:
         del gen.backend.step
@@ -166,7 +166,7 @@ def test_int8_batch_equals_single_runs_too(bundle):
     # Dynamic int8 quantizes activations with one scale per tensor: batched rows would shift each other's
     # numbers, so quantized graphs run row by row and batching cannot change a prompt's motion.
     gen8 = MotionGenerator(bundle, variant="int8")
-    assert isinstance(gen8.backend, RowByRow) and "step" in gen8.backend.graphs
+    assert "step" in gen8.backend.one_row
     batch = gen8.generate(PROMPTS[:3], seconds=seconds_of_bundle(bundle, 12), seed=20,
                           sampling=SamplingConfig(guidance=2.0))
     for i, text in enumerate(PROMPTS[:3]):

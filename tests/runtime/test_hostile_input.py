@@ -22,7 +22,8 @@ import pytest
 from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
 
 from mogo_runtime import MotionGenerator, SamplingConfig
-from mogo_runtime.bundle import BundleError, sha256_file
+from mogo_runtime.bundle.folder import sha256_file
+from mogo_runtime.bundle.sections import BundleError
 from mogo_runtime.cli import main
 from mogo_runtime.tca import CaptionIndex, OfflineAligner
 from mogo_runtime.tca import index as index_module

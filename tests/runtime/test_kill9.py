@@ -20,11 +20,11 @@ import pytest
 from PIL import Image
 from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
 
-from mogo_runtime import files
+from mogo_runtime.outputs import files
 from mogo_runtime.cli import main
-from mogo_runtime.motion import Motion, OutputError
-from mogo_runtime.preview import render_mp4
-from mogo_runtime.skeleton import HUMANML3D
+from mogo_runtime.kinematics.skeleton import HUMANML3D
+from mogo_runtime.outputs.motion import Motion, OutputError
+from mogo_runtime.outputs.preview import render_mp4
 
 RUNS = int(os.environ.get("MOGO_KILL9_RUNS", "20"))
 SEED = int(os.environ.get("MOGO_KILL9_SEED", "0"))
@@ -36,7 +36,7 @@ OUTPUTS = ("m.bvh", "m.gif", "m.json", "m.npy", "m.glb", "m.mp4")
 # where O_TMPFILE is missing), so both designs face the kill.
 DRIVER = """
 import sys
-import mogo_runtime.files as files
+import mogo_runtime.outputs.files as files
 if sys.argv[1] == "named":
     files._anonymous_ok = False
 from mogo_runtime.cli import main

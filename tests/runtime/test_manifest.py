@@ -16,8 +16,8 @@ import pytest
 from toy_bundle import portable_toy_bundle, toy_bundle  # noqa: F401  (fixtures)
 
 from mogo_runtime import Bundle, BundleError, MotionGenerator
+from mogo_runtime.bundle.manifest import SCHEMA_VERSION, Manifest
 from mogo_runtime.cli import main
-from mogo_runtime.manifest import SCHEMA_VERSION, Manifest
 
 BAD_VALUES = [None, "12", [], {}, 0, -1, True, 1e308, float("nan"), "x"]
 
@@ -84,7 +84,7 @@ def test_every_malformed_field_is_one_clear_error(portable_toy_bundle, manifest_
     for name, data in cases:
         (bundle / "manifest.json").write_text(json.dumps(data))
         try:
-            Bundle.load(bundle, check_graphs=False)
+            Bundle.load(bundle)
             loaded.append(name)
         except BundleError as e:
             refused += 1

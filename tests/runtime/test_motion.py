@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from mogo_runtime.features import recover_from_ric
-from mogo_runtime.motion import SAVE_FORMATS, FootLock, Motion, OutputError, RootIntegrator, check_output_path
-from mogo_runtime.skeleton import HUMANML3D
+from mogo_runtime.kinematics.features import recover_from_ric
+from mogo_runtime.kinematics.frames import FootLock, RootIntegrator
+from mogo_runtime.kinematics.skeleton import HUMANML3D
+from mogo_runtime.outputs.motion import SAVE_FORMATS, Motion, OutputError, check_output_path
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +29,7 @@ def test_integrator_equals_recover_from_ric_in_any_chunking(humanml3d_fixture):
     want = recover_from_ric(feats.astype(np.float64), HUMANML3D.num_joints)
     assert np.ptp(want[:, 0, 0]) > 0.5 or np.ptp(want[:, 0, 2]) > 0.5           # the root really travels
     for chunk in (1, 4, 7):
-        integ = RootIntegrator(HUMANML3D.num_joints)
+        integ = RootIntegrator(HUMANML3D)
         got = np.concatenate([integ.push(feats[i:i + chunk].astype(np.float64))
                               for i in range(0, len(feats), chunk)])
         assert got.shape == want.shape
@@ -41,14 +42,14 @@ def test_integrator_follows_a_turning_root():
     feats = rng.normal(scale=0.05, size=(60, 263))
     feats[:, 0] = 0.05
     feats[:, 2] = 0.04
-    integ = RootIntegrator(22)
+    integ = RootIntegrator(HUMANML3D)
     got = np.concatenate([integ.push(feats[i:i + 4]) for i in range(0, 60, 4)])
     assert np.abs(got - recover_from_ric(feats, 22)).max() < 1e-9
 
 
 def test_integrator_rejects_wrong_width():
     with pytest.raises(ValueError, match=r"\(n, 263\)"):
-        RootIntegrator(22).push(np.zeros((3, 251)))
+        RootIntegrator(HUMANML3D).push(np.zeros((3, 251)))
 
 
 TOE_CHANNELS = (260, 262)          # left toe, right toe contact channels of the 263 features
@@ -69,7 +70,7 @@ def test_foot_lock_holds_a_single_planted_toe_still():
     joints, feats = sliding_feet()
     feats[:, list(TOE_CHANNELS)] = 0.0
     feats[10:20, TOE_CHANNELS[0]] = 1.0                  # only the left toe is planted, from frame 10 to 19
-    got = FootLock(22).push(joints, feats)
+    got = FootLock(HUMANML3D).push(joints, feats)
     toe = got[10:20, TOES[0]][:, [0, 2]]
     assert np.abs(toe - toe[0]).max() < 1e-6, "the held toe moved"
     assert np.abs(np.diff(got[:, TOES[0], [0, 2]], axis=0)).max() > 0.05    # the unheld frames still move
@@ -82,7 +83,7 @@ def test_foot_lock_holds_a_single_planted_toe_still():
 def test_foot_lock_takes_the_mean_slide_of_two_held_toes():
     joints, feats = sliding_feet()
     feats[:, list(TOE_CHANNELS)] = 1.0
-    got = FootLock(22).push(joints, feats).astype(np.float64)
+    got = FootLock(HUMANML3D).push(joints, feats).astype(np.float64)
     mean_step = np.diff(got[:, list(TOES)][..., [0, 2]], axis=0).mean(1)    # (T - 1, 2): zero when locked
     assert np.abs(mean_step).max() < 1e-6
 
@@ -90,18 +91,18 @@ def test_foot_lock_takes_the_mean_slide_of_two_held_toes():
 def test_foot_lock_without_contact_changes_nothing():
     joints, feats = sliding_feet()
     feats[:, list(TOE_CHANNELS)] = 0.0
-    assert np.array_equal(FootLock(22).push(joints, feats), joints)
+    assert np.array_equal(FootLock(HUMANML3D).push(joints, feats), joints)
 
 
 def test_foot_lock_is_the_same_in_any_chunking():
     joints, feats = sliding_feet(frames=97, seed=1)
-    want = FootLock(22).push(joints, feats)
+    want = FootLock(HUMANML3D).push(joints, feats)
     assert not np.array_equal(want, joints)
     for chunk in (1, 4, 5, 96):
-        lock = FootLock(22)
+        lock = FootLock(HUMANML3D)
         got = np.concatenate([lock.push(joints[i:i + chunk], feats[i:i + chunk]) for i in range(0, 97, chunk)])
         assert np.array_equal(got, want), chunk
-    assert FootLock(22).push(joints[:0], feats[:0]).shape == (0, 22, 3)
+    assert FootLock(HUMANML3D).push(joints[:0], feats[:0]).shape == (0, 22, 3)
 
 
 def grounded_toe_sliding(joints):
@@ -115,7 +116,7 @@ def grounded_toe_sliding(joints):
 def test_foot_lock_on_real_data_slides_less(clip):
     # HumanML3D marks a foot in contact when it moves under ~4.5 cm a frame, so the lock also takes away slow
     # slides of a foot about to lift: the body moves a little, and grounded toes slide less than before.
-    got = FootLock(22).push(clip.joints, clip.features)
+    got = FootLock(HUMANML3D).push(clip.joints, clip.features)
     before, after = grounded_toe_sliding(clip.joints), grounded_toe_sliding(got)
     moved = np.linalg.norm(got[:, 0, [0, 2]] - clip.joints[:, 0, [0, 2]], axis=-1).max()
     print(f"\nfoot lock on HumanML3D 012314: sliding frames {before[0]} -> {after[0]}, grounded toe travel "

@@ -13,10 +13,10 @@ import pytest
 from toy_bundle import CAPACITY, portable_toy_bundle  # noqa: F401  (a fixture)
 
 from mogo_runtime import Bundle, BundleError, MotionGenerator, SamplingConfig
+from mogo_runtime.bundle.sampling import GREEDY
 from mogo_runtime.cli import main
 from mogo_runtime.decoding import GenerationTask
 from mogo_runtime.engine import FixedCache, FixedCacheBackend, OrtBackend, open_backend
-from mogo_runtime.sampling import GREEDY
 
 PROMPTS = ["a person walks forward", "a person jumps twice", "a person walks in a circle", "a person waves"]
 SAMPLINGS = [GREEDY, SamplingConfig(temperature=1.0, top_p=0.8), SamplingConfig(temperature=0.9, guidance=2.0)]
@@ -142,12 +142,12 @@ def test_greedy_tokens_of_the_trained_tiny_bundle_are_those_of_fp32(tiny_bundle)
     prompts = [f"a person {a}" for a in words] + [f"a person {a} and then {b}" for a, b in zip(words, words[3:])]
     emb = backends["fp32"].encode_text(prompts)
     seeds = list(range(len(prompts)))
-    tokens = {v: GenerationTask(b, GREEDY, bundle.dims.max_tokens).tokens(emb, seeds) for v, b in backends.items()}
+    tokens = {v: GenerationTask(b, bundle.skeleton, GREEDY, bundle.dims.max_tokens).tokens(emb, seeds) for v, b in backends.items()}
     streaming = bundle.manifest.streaming
     assert streaming is not None                                        # the tiny preset trains for streams
     starts = list(range(0, 600, 23))
     cycle = emb[np.arange(len(starts)) % len(emb)]                     # prompt k from token starts[k] on
-    stream = {v: GenerationTask(b, GREEDY, 600, 600, streaming).timeline(cycle, starts, seed=0).tokens
+    stream = {v: GenerationTask(b, bundle.skeleton, GREEDY, 600, 600, streaming).timeline(cycle, starts, seed=0).tokens
               for v, b in backends.items()}
     for v in ("portable", "portable_ort"):
         same = sum(np.array_equal(a, b) for a, b in zip(tokens["fp32"], tokens[v]))

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from mogo_runtime import preview
-from mogo_runtime.preview import HEAD, LEFT, RIGHT, SHADOW, render_frames, render_gif, render_grid_gif, render_mp4
-from mogo_runtime.skeleton import HUMANML3D
+from mogo_runtime.outputs import preview
+from mogo_runtime.kinematics.skeleton import HUMANML3D
+from mogo_runtime.outputs.preview import HEAD, LEFT, RIGHT, SHADOW, render_frames, render_gif, render_grid_gif, render_mp4
 
 
 def fixture_joints(humanml3d_fixture) -> np.ndarray:

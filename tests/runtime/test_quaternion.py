@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from mogo_runtime.quaternion import qbetween, qinv, qmul, qrot, quaternion_to_cont6d, quaternion_to_matrix
+from mogo_runtime.kinematics.quaternion import qbetween, qinv, qmul, qrot, quaternion_to_cont6d, quaternion_to_matrix
 
 rng = np.random.default_rng(0)
 

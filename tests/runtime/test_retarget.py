@@ -10,11 +10,11 @@ import pygltflib
 import pytest
 
 from mogo_runtime import Motion
-from mogo_runtime.gltf import glb_bytes
-from mogo_runtime.quaternion import quaternion_to_matrix
-from mogo_runtime.retarget import CONTACT_HEIGHT, PLANT_MAX_DEG, PLANT_MAX_HIPS_M, retarget
-from mogo_runtime.rig import RIGS, RigError, load_rig, rig_from_dict
-from mogo_runtime.skeleton import HUMANML3D
+from mogo_runtime.kinematics.quaternion import quaternion_to_matrix
+from mogo_runtime.kinematics.skeleton import HUMANML3D
+from mogo_runtime.outputs.gltf import glb_bytes
+from mogo_runtime.outputs.retarget import CONTACT_HEIGHT, PLANT_MAX_DEG, PLANT_MAX_HIPS_M, retarget
+from mogo_runtime.outputs.rig import RIGS, RigError, load_rig, rig_from_dict
 
 GAME_RIGS = [r for r in RIGS if r != "humanml3d"]
 DIRECTION_TOL_DEG = 2.0
@@ -185,7 +185,7 @@ def test_root_motion_rides_on_the_unreal_root_bone(clip):
 
 
 def test_retarget_refuses_what_it_cannot_do(clip):
-    from mogo_runtime.skeleton import KIT
+    from mogo_runtime.kinematics.skeleton import KIT
     with pytest.raises(ValueError, match="HumanML3D's 22-joint skeleton"):
         retarget(np.zeros((4, 21, 3)), "mixamo", skeleton=KIT)
     with pytest.raises(ValueError, match=r"shape \(T, 22, 3\)"):

@@ -19,7 +19,7 @@ import pytest
 from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
 
 from mogo_runtime import Bundle, MotionGenerator
-from mogo_runtime.bundle import sha256_file
+from mogo_runtime.bundle.folder import sha256_file
 from mogo_runtime.cli import main
 from mogo_runtime.tca import (AlignedPrompt, Aligner, CaptionIndex, OfflineAligner, WordingNormalizer, apply_alignment,
                               quantize_rows, sentence, strip_subject)
@@ -306,7 +306,7 @@ def add_caption_index(src: Path, dst: Path, dtype: str = "float16") -> Path:
     """A copy of a bundle with a caption index embedded by its own text encoder, as the exporter writes it."""
     shutil.copytree(src, dst)
     b = Bundle.load(dst)
-    session = TextEncoderSession(b.graph_file("text_encoder"), b.file("tokenizer.json"))
+    session = TextEncoderSession(b.read_verified("text_encoder.onnx"), b.read_verified("tokenizer.json"))
     words = ["a person walks forward.", "a person waves left hand.", "a person kicks twice.",
              "a person runs and then sits down.", "a person turns around.", "a person jumps."]
     index = CaptionIndex(words, session.encode(words), None, b.manifest.text_encoder.name)
@@ -390,8 +390,8 @@ def test_an_exported_bundle_ships_its_caption_index(tiny_bundle):
     """mogo-export writes captions.npz and the manifest's `tca` section; the runtime picks them up."""
     gen = MotionGenerator(tiny_bundle)
     tca = gen.bundle.manifest.tca
-    assert gen.aligner.has_index and len(gen.aligner.index) == tca["count"] > 0
-    assert gen.aligner.index.dim == gen.dims.text_dim and gen.aligner.lexical_weight == tca["lexical_weight"]
+    assert gen.aligner.has_index and len(gen.aligner.index) == tca.count > 0
+    assert gen.aligner.index.dim == gen.dims.text_dim and gen.aligner.lexical_weight == tca.lexical_weight
     caption = gen.aligner.index.captions[0]
     a = gen.aligner.align(caption)
     assert a.details["neighbours"][0][0][1] > 0.95                       # a training caption finds itself

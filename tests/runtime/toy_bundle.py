@@ -25,12 +25,13 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
 
-from mogo_runtime.features import FeatureLayout
-from mogo_runtime.manifest import (INT8_FIXED, PER_ROW_INT8, PORTABLE_OPSET, GraphFile, GraphSpec, Manifest,
-                                   ModelDims, Normalization, OrtFormat, PortableSpec, StreamingSpec, TensorSpec,
-                                   TextEncoderSpec, required_capacity)
-from mogo_runtime.sampling import SamplingConfig
-from mogo_runtime.skeleton import HUMANML3D
+from mogo_runtime.bundle.manifest import INT8_FIXED, Manifest
+from mogo_runtime.bundle.sampling import SamplingConfig
+from mogo_runtime.bundle.sections import (PER_ROW_INT8, PORTABLE_OPSET, GraphFile, GraphSpec, ModelDims,
+                                          Normalization, OrtFormat, PortableSpec, Quantization, StreamingSpec,
+                                          TensorSpec, TextEncoderSpec, required_capacity)
+from mogo_runtime.kinematics.features import FeatureLayout
+from mogo_runtime.kinematics.skeleton import HUMANML3D
 from mogo_runtime.text import TokenizerSettings, configure_tokenizer
 
 WORDS = ["a", "person", "walks", "forward", "waves", "hand", "jumps", "twice", "left", "right", "runs", "sits",
@@ -287,7 +288,7 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
     variants = {"fp32": fp32}
     if int8:
         quantize_dynamic(str(out / "step.onnx"), str(out / "step.int8.onnx"), weight_type=QuantType.QInt8)
-        variants["int8"] = {**fp32, "step": GraphFile("step.int8.onnx", {"method": "dynamic", "weight_type": "QInt8"})}
+        variants["int8"] = {**fp32, "step": GraphFile("step.int8.onnx", Quantization("dynamic", {"weight_type": "QInt8"}))}
     if portable:
         onnx.save(step(step_rng, portable_step_spec(), fixed=True, opset=opset), out / "step.portable.onnx")
         variants["portable"] = {**fp32, "step": GraphFile("step.portable.onnx")}
@@ -296,7 +297,7 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
             quantize_dynamic(str(out / "step.portable.onnx"), str(out / "step.portable.int8.onnx"),
                              weight_type=QuantType.QInt8)
             onnx.save(quantize_per_row(onnx.load(out / "step.portable.int8.onnx")), out / "step.portable.int8.onnx")
-            variants[INT8_FIXED] = {**fp32, "step": GraphFile("step.portable.int8.onnx", {"method": PER_ROW_INT8})}
+            variants[INT8_FIXED] = {**fp32, "step": GraphFile("step.portable.int8.onnx", Quantization(PER_ROW_INT8, {}))}
     ort_format = to_ort(out, variants, [v for v in ("int8", "portable") if v in variants]) if ort else None
     files = {p.name: (p.stat().st_size, hashlib.sha256(p.read_bytes()).hexdigest())
              for p in sorted(out.iterdir()) if p.is_file() and p.name != "manifest.json"}

@@ -16,9 +16,9 @@ import pytest
 from mogo_export.data.procedural.clips import generate_clip
 from mogo_export.data.procedural.families import FAMILIES
 from mogo_runtime import MotionGenerator
-from mogo_runtime.gltf import write_glb
-from mogo_runtime.retarget import CONTACT_HEIGHT, retarget
-from mogo_runtime.rig import RIGS, load_rig
+from mogo_runtime.outputs.gltf import write_glb
+from mogo_runtime.outputs.retarget import CONTACT_HEIGHT, retarget
+from mogo_runtime.outputs.rig import RIGS, load_rig
 
 HERE = Path(__file__).resolve().parent
 DIRECTION_TOL_DEG = 2.0

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from mogo_runtime import MotionGenerator
-from mogo_runtime.bvh import joints_to_bvh_text
-from mogo_runtime.motion import JSON_DECIMALS
+from mogo_runtime.outputs.bvh import joints_to_bvh_text
+from mogo_runtime.outputs.motion import JSON_DECIMALS
 
 # (prompt, seed, seconds): the model ends the first two; the third has a fixed length
 CLIPS = [("a person walks forward", 1, None), ("a person jumps twice", 2, None),

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mogo_runtime.skeleton import HUMANML3D
+from mogo_runtime.kinematics.skeleton import HUMANML3D
 
 from .curves import ease
 from .kinematics import contact_points, forward_kinematics, two_bone_ik

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mogo_runtime.skeleton import HUMANML3D
+from mogo_runtime.kinematics.skeleton import HUMANML3D
 
 
 def _rot(axis: int, deg: np.ndarray) -> np.ndarray:

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from mogo_runtime.features import FeatureLayout
-from mogo_runtime.skeleton import HUMANML3D
+from mogo_runtime.kinematics.features import FeatureLayout
+from mogo_runtime.kinematics.skeleton import HUMANML3D
 
 from ..humanml3d import canonicalize, extract_features
 from .captions import caption_line

@@ -7,6 +7,7 @@ with `CaptionIndex.load`: one definition of the format. On disk the rows are int
 """
 from __future__ import annotations
 
+import io
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -14,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..jsonfields import BundleError
+from ..bundle.sections import BundleError, TcaSpec
+from ..kinematics.quaternion import unit
 
 INDEX_FORMAT = "mogo-caption-index"
 INDEX_VERSION = 1
@@ -45,10 +47,6 @@ def quantize_rows(x: np.ndarray, dtype: str = "int8") -> tuple[np.ndarray, np.nd
     scale = np.where(scale > 0, scale, 1.0).astype(np.float32)
     q = np.clip(np.rint(x / scale[:, None]), -127, 127).astype(np.int8)
     return q, scale
-
-
-def unit(x: np.ndarray) -> np.ndarray:
-    return x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
 
 
 @dataclass
@@ -92,10 +90,11 @@ class CaptionIndex:
                 "labels": self.labels is not None}
 
     @classmethod
-    def load(cls, path: str | Path) -> "CaptionIndex":
-        """Read a caption index; BundleError naming `path` for anything that is not one, or one past the bounds."""
-        path = Path(path)
-        z = read_npz(path)
+    def load(cls, source: str | Path | bytes, path: str | Path | None = None) -> "CaptionIndex":
+        """Read a caption index from a file or its bytes (`path` names them in errors); BundleError for anything that
+        is not one, or one past the bounds."""
+        path = path if path is not None else source
+        z = read_npz(io.BytesIO(source) if isinstance(source, bytes) else source, path)
         if "format" not in z or str(z["format"]) != INDEX_FORMAT:
             raise BundleError(f"{path}: not a {INDEX_FORMAT} file (arrays: {sorted(z)})")
         for name in ("version", "encoder", "captions", "embeddings"):
@@ -125,11 +124,12 @@ class CaptionIndex:
         return idx, np.take_along_axis(sims, idx, axis=1)
 
 
-def read_npz(path: Path) -> dict[str, np.ndarray]:
-    """The arrays of a caption index `.npz`, each member's size, dtype and shape checked against MEMBERS and the
-    bounds above before it is decompressed; BundleError naming `path` for a file that is not a readable index."""
+def read_npz(source, path) -> dict[str, np.ndarray]:
+    """The arrays of a caption index `.npz` (a file or a file object), each member's size, dtype and shape checked
+    against MEMBERS and the bounds above before it is decompressed; BundleError naming `path` for a file that is not
+    a readable index."""
     try:
-        with zipfile.ZipFile(path) as zf:
+        with zipfile.ZipFile(source) as zf:
             infos = {i.filename[:-4]: i for i in zf.infolist() if i.filename.endswith(".npy")}
             infos = {k: i for k, i in infos.items() if k in MEMBERS}     # others (a later version's) are not read
             total = sum(i.file_size for i in infos.values())
@@ -188,17 +188,18 @@ def _check_header(path: Path, name: str, file_size: int, shape: tuple, dtype: np
                           f"{file_size - header:,}")
 
 
-def load_bundle_index(bundle) -> tuple[CaptionIndex | None, dict]:
-    """The caption index and `tca` manifest section of a bundle (a mogo_runtime.Bundle), or (None, {})."""
-    section = dict(bundle.manifest.tca or {})
-    if not section:
-        return None, {}
-    path = bundle.file(section["file"])         # the manifest's parser checked that the file is listed
-    index = CaptionIndex.load(path)
+def load_bundle_index(bundle) -> tuple[CaptionIndex | None, TcaSpec | None]:
+    """The caption index and `tca` manifest section of a bundle (a mogo_runtime.Bundle), or (None, None). The index
+    is read from the bytes whose sha256 was checked."""
+    spec = bundle.manifest.tca
+    if spec is None:
+        return None, None
+    path = bundle.path / spec.file
+    index = CaptionIndex.load(bundle.read_verified(spec.file), path)
     te = bundle.manifest.text_encoder.name
     if index.encoder and te and index.encoder != te:
         raise BundleError(f"{path}: embeddings from text encoder {index.encoder!r}, the bundle's is {te!r}; "
                           f"re-export the bundle")
     if index.dim != bundle.dims.text_dim:
         raise BundleError(f"{path}: {index.dim}-dim embeddings, model.text_dim is {bundle.dims.text_dim}")
-    return index, section
+    return index, spec

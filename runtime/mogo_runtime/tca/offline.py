@@ -16,15 +16,15 @@ from typing import Callable
 
 import numpy as np
 
+from ..bundle.sections import TcaSpec
 from ..text import check_texts
 from .base import AlignedPrompt, Aligner
 from .index import CaptionIndex, load_bundle_index
 from .lexicon import DIRECTIONS, OPPOSITES
 from .wording import WordingNormalizer, caption_verbs, sentence, strip_subject
 
-# The manifest's `tca` section may set these; older manifests also carry `method`, `top_k` and `temperature`,
-# read by nothing now (docs/tca.md: every bundle aligns with "nearest").
-DEFAULTS = {"lexical_weight": 0.05, "split_margin": 0.02}
+# The aligner's settings where the caller gives none and the bundle has no `tca` section: that section's defaults.
+DEFAULTS = {"lexical_weight": TcaSpec.lexical_weight, "split_margin": TcaSpec.split_margin}
 CANDIDATES = 32   # nearest captions re-ranked by direction words
 NEIGHBOURS = 3    # of them, kept per clause in `details["neighbours"]`
 # Bare "and"s tried as split points, per prompt (the first ones). Each try embeds a clause and its two parts, so
@@ -81,11 +81,11 @@ class OfflineAligner(Aligner):
 
     def __init__(self, bundle=None, text_session=None, lexical_weight: float | None = None,
                  split_margin: float | None = None, index: CaptionIndex | None = None):
-        section: dict = {}
+        spec = None
         if index is None and bundle is not None:
-            index, section = load_bundle_index(bundle)
+            index, spec = load_bundle_index(bundle)
         self.index = index
-        cfg = {**DEFAULTS, **{k: section[k] for k in DEFAULTS if k in section}}
+        cfg = {k: getattr(spec, k) for k in DEFAULTS} if spec is not None else DEFAULTS
         self.lexical_weight = float(cfg["lexical_weight"] if lexical_weight is None else lexical_weight)
         self.split_margin = float(cfg["split_margin"] if split_margin is None else split_margin)
         self.encode = _encoder(text_session) if text_session is not None else None

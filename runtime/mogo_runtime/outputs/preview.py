@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from ..kinematics.skeleton import HUMANML3D, Skeleton, check_fps, rest_positions
 from .files import OutputError, staged_output, write_atomic
-from .skeleton import HUMANML3D, Skeleton, check_fps
 
 # Palette indices and colours.
 BG, GRID, PATH, SHADOW, CENTRE, LEFT, RIGHT, TEXT, HEAD = range(9)
@@ -144,7 +144,7 @@ class _Scene:
         self.small = _font(max(8, round(min(W, H) / 30)))
         self.title_lines = _wrap(title or "", self.font, W - 8, max_lines=2)
         self.top = 6 + len(self.title_lines) * (self.font.size + 3) if self.title_lines else 4
-        rest = _rest_positions(skeleton)
+        rest = rest_positions(skeleton.offsets, skeleton.parents)
         # +1 for the body's left (rest-pose x > 0, the body facing +z), -1 for right, 0 on the midline
         self.side = [int(np.sign(x)) if abs(x) > 1e-6 else 0 for x in rest[:, 0]]
         # the highest leaf on the midline in the rest pose (HumanML3D's head, KIT's upper neck)
@@ -235,15 +235,6 @@ class _Scene:
         W, H = self.size
         draw.text((4, H - self.small.size - 4), f"{t + 1}/{len(self.pos)}", fill=TEXT, font=self.small)
         return img
-
-
-def _rest_positions(skeleton: Skeleton) -> np.ndarray:
-    rest = np.zeros((skeleton.num_joints, 3))
-    for j in skeleton.depth_first():
-        p = skeleton.parents[j]
-        if p >= 0:
-            rest[j] = rest[p] + skeleton.offsets[j]
-    return rest
 
 
 def _font(size: int):

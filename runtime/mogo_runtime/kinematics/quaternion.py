@@ -11,6 +11,15 @@ import numpy as np
 _EPS = 1e-12
 
 
+def unit(v: np.ndarray, fallback: np.ndarray | None = None) -> np.ndarray:
+    """Vectors (..., n) scaled to length 1: the one normaliser of the runtime. A vector of length <= 1e-12 becomes
+    `fallback` where one is given (a direction that cannot be known), else stays near zero."""
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    if fallback is None:
+        return v / np.maximum(n, _EPS)
+    return np.where(n > _EPS, v / np.maximum(n, 1e-300), fallback)
+
+
 def _check_last(a: np.ndarray, n: int, name: str) -> np.ndarray:
     a = np.asarray(a)
     if a.shape[-1:] != (n,):

@@ -87,6 +87,14 @@ def depth_first(parents) -> list[int]:
     return order
 
 
+def rest_positions(offsets: np.ndarray, parents) -> np.ndarray:
+    """(J, 3) joint positions of a rest pose from each joint's offset to its parent (J, 3), the root at the origin."""
+    out = np.zeros_like(offsets)
+    for j in depth_first(parents)[1:]:
+        out[j] = out[parents[j]] + offsets[j]
+    return out
+
+
 def is_ancestor(parents, a: int, b: int) -> bool:
     """Joint a is joint b or above it, in a tree given by each joint's parent index (-1 for the root)."""
     while b >= 0:
@@ -151,15 +159,6 @@ def check_fps(fps) -> float:
     if not (np.isfinite(value) and value > 0):
         raise ValueError(f"fps must be a positive number, got {fps!r}")
     return value
-
-
-def toes_of(num_joints: int) -> tuple[int, int]:
-    """(left toe, right toe) joints of the known skeleton with num_joints joints: the joints the features'
-    toe contact channels describe."""
-    for s in SKELETONS.values():
-        if s.num_joints == num_joints:
-            return s.foot_left[1], s.foot_right[1]
-    raise ValueError(f"no known skeleton has {num_joints} joints: {sorted((s.num_joints, s.name) for s in SKELETONS.values())}")
 
 
 def get_skeleton(name: str) -> Skeleton:

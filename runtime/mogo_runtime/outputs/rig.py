@@ -20,17 +20,19 @@ from pathlib import Path
 
 import numpy as np
 
+from ..checks import Fields, kind
+from ..kinematics.quaternion import unit
+from ..kinematics.skeleton import HUMANML3D, children_of, depth_first, is_ancestor, rest_positions
 from .ik import min_rotation
-from .jsonfields import Fields, kind
-from .skeleton import HUMANML3D, children_of, depth_first, is_ancestor
 
 RIG_FORMAT = "mogo-rig/1"
-RIGS_DIR = Path(__file__).parent / "rigs"
+RIGS_DIR = Path(__file__).parent / "rigs"     # the game rigs' files; humanml3d is built from its skeleton
 RIGS = ("humanml3d", "mixamo", "ue5", "unity", "vrm")
 DEFAULT_RIG = "humanml3d"   # what a .glb gets when no rig is named
 BONE_AXES = {"none": None, "x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 MAX_BONES = 1024
 MAX_FILE_BYTES = 1 << 20
+FOOT_HEIGHT = 0.05   # metres from the floor to HumanML3D's ankle and toe joints at rest
 # The bones a retarget cannot do without: the root (hips) and both legs (the target's leg length scales the path).
 REQUIRED_SOURCES = ("pelvis", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle")
 FOOT_SOURCES = ("left_ankle", "right_ankle", "left_foot", "right_foot")
@@ -102,7 +104,7 @@ class Rig:
             parent = rot[p] if p >= 0 else np.eye(3)
             along = self.heads[self.children[b][0]] - self.heads[b] if self.children[b] else \
                 self.heads[b] - self.heads[p] if p >= 0 else parent @ axis
-            rot[b] = min_rotation((parent @ axis)[None], _unit(along)[None])[0] @ parent
+            rot[b] = min_rotation((parent @ axis)[None], unit(along, fallback=np.array([0.0, 1.0, 0.0]))[None])[0] @ parent
         return rot
 
     @cached_property
@@ -147,6 +149,8 @@ def load_rig(rig: "str | Path | Rig") -> Rig:
     if isinstance(rig, Rig):
         return rig
     text = str(rig)
+    if text == HUMANML3D.name:
+        return rig_from_dict(humanml3d_rig(), text)
     if text in RIGS:
         path = RIGS_DIR / f"{text}.json"
     elif text.lower().endswith(".json"):
@@ -163,6 +167,20 @@ def load_rig(rig: "str | Path | Rig") -> Rig:
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise RigError(f"{path}: not a JSON rig file ({e})") from None
     return rig_from_dict(data, str(path))
+
+
+def humanml3d_rig() -> dict:
+    """HumanML3D's own skeleton (kinematics.skeleton.HUMANML3D, the one description of that body) as a rig file:
+    every joint a bone, heads at its rest pose with the lowest joints FOOT_HEIGHT above the floor, to 0.1 mm."""
+    s = HUMANML3D
+    rest = rest_positions(s.offsets, s.parents)
+    heads = np.round(rest + [0.0, FOOT_HEIGHT - rest[:, 1].min(), 0.0], 4) + 0.0      # + 0.0: no -0.0 in files
+    return {"format": RIG_FORMAT, "name": s.name, "rest_pose": "T", "bone_axis": "none", "root_motion_bone": None,
+            "description": "HumanML3D's own 22-joint skeleton (SMPL joint names), T-pose, bone lengths of the dataset's "
+                           "skeleton: the default rig of .glb files, for viewers and for engines that retarget "
+                           "themselves.",
+            "bones": [{"name": n, "parent": s.joint_names[p] if p >= 0 else None, "head": h.tolist(), "source": n}
+                      for n, p, h in zip(s.joint_names, s.parents, heads)]}
 
 
 def rig_from_dict(data, where: str = "rig") -> Rig:
@@ -253,8 +271,3 @@ def _check_tree(rig: Rig, f: Fields) -> None:
 
 def _has(rig: Rig, source: str) -> bool:
     return HUMANML3D.joint_names.index(source) in rig.sources
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v)
-    return v / n if n > 1e-12 else np.array([0.0, 1.0, 0.0])

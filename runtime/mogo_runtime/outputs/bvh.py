@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..kinematics.skeleton import HUMANML3D, Skeleton, check_fps, children_of, depth_first
 from .files import write_atomic
 from .ik import axis_angle, local_rotations, rest_offsets
-from .skeleton import HUMANML3D, Skeleton, check_fps, children_of, depth_first
 
 _UNIT_SCALE = {"cm": 100.0, "m": 1.0}
 # Intrinsic Euler orders (R = R_first @ R_mid @ R_last), chosen so gimbal lock (middle angle +-90) needs a

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pygltflib as gl
 
+from ..kinematics.quaternion import matrix_to_quaternion
 from .files import write_atomic
-from .quaternion import matrix_to_quaternion
 from .retarget import RigMotion
 
 GENERATOR = "mogo"

@@ -22,10 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..kinematics.quaternion import unit
+from ..kinematics.skeleton import HUMANML3D, Skeleton, check_fps, is_ancestor, rest_positions
 from .bvh import rotations_to_bvh_text
 from .ik import axis_angle, kabsch, local_rotations, min_rotation, rest_offsets
 from .rig import FOOT_SOURCES, Rig, load_rig
-from .skeleton import HUMANML3D, Skeleton, check_fps, is_ancestor
 
 HEAD = HUMANML3D.joint_names.index("head")
 CONTACT_HEIGHT = 0.05       # m: a source toe below this is on the ground (mogo_eval's skating measure too)
@@ -104,7 +105,7 @@ def retarget(joints, rig: "Rig | str", fps: float = 20.0, in_place: bool = False
     pos = skeleton.check_joints(joints, "joints")
     offsets = rest_offsets(pos, skeleton)
     src_turn = _world_turns(local_rotations(pos, skeleton, offsets, fps), skeleton.parents)    # (T, J, 3, 3)
-    src_rest = _rest_positions(offsets, skeleton.parents)                                      # pelvis at 0
+    src_rest = rest_positions(offsets, skeleton.parents)                                      # pelvis at 0
 
     T, B = len(pos), rig.num_bones
     turn = np.zeros((T, B, 3, 3))
@@ -116,14 +117,14 @@ def retarget(joints, rig: "Rig | str", fps: float = 20.0, in_place: bool = False
             turn[:, b] = turn[:, p] if p >= 0 else np.eye(3)     # of their own): keeps its rest pose on its parent
         elif len(spans) == 1:
             c = spans[0]
-            rest_rig = _unit(rig.heads[c] - rig.heads[b])
-            rest_src = _unit(src_rest[rig.sources[c]] - src_rest[s])
+            rest_rig = unit(rig.heads[c] - rig.heads[b])
+            rest_src = unit(src_rest[rig.sources[c]] - src_rest[s])
             base = src_turn[:, s] @ min_rotation(rest_rig[None], rest_src[None])[0]
-            seen = _unit(pos[:, rig.sources[c]] - pos[:, s])
+            seen = unit(pos[:, rig.sources[c]] - pos[:, s])
             turn[:, b] = min_rotation(base @ rest_rig, seen) @ base
         else:
-            rest_rig = _unit(rig.heads[spans] - rig.heads[b])                              # (k, 3)
-            seen = _unit(pos[:, [rig.sources[c] for c in spans]] - pos[:, None, s])         # (T, k, 3)
+            rest_rig = unit(rig.heads[spans] - rig.heads[b])                              # (k, 3)
+            seen = unit(pos[:, [rig.sources[c] for c in spans]] - pos[:, None, s])         # (T, k, 3)
             turn[:, b] = kabsch(rest_rig[None], seen)
 
     legs = [[f"{side}_{j}" for j in ("hip", "knee", "ankle")] for side in ("left", "right")]
@@ -253,20 +254,7 @@ def _world_turns(local: np.ndarray, parents) -> np.ndarray:
     return out
 
 
-def _rest_positions(offsets: np.ndarray, parents) -> np.ndarray:
-    out = np.zeros_like(offsets)
-    for j, p in enumerate(parents):
-        if p >= 0:
-            out[j] = out[p] + offsets[j]
-    return out
-
-
 def _leg_length(heads: np.ndarray, legs: list[list[int]]) -> float:
     """Thigh plus shin, mean of the two legs: how far a stride reaches (the pelvis and the feet differ more between
     rigs than legs do, and a planted foot slides by the difference in leg length times the angle the leg sweeps)."""
     return float(np.mean([sum(np.linalg.norm(heads[b] - heads[a]) for a, b in zip(leg, leg[1:])) for leg in legs]))
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.maximum(n, 1e-12)

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .skeleton import HUMANML3D, Skeleton
+from ..kinematics.quaternion import unit
+from ..kinematics.skeleton import HUMANML3D, Skeleton
 
 _TWIST_RELAX_S = 0.25  # time constant (seconds) for a carried-over twist to relax back to the swing
 
@@ -78,7 +79,7 @@ def _swing_with_continuous_twist(u: np.ndarray, d: np.ndarray, relax: float) -> 
     """(T, 3, 3) rotations taking direction u to each d[t]: the pure swing, with a twist about u only
     where the swing jumps (d near -u); that twist follows the bone over time and decays by `relax`/frame."""
     u = u / np.linalg.norm(u)
-    d = _normalise(d, fallback=u)
+    d = unit(d, fallback=u)
     swing = min_rotation(np.broadcast_to(u, d.shape), d)              # (T, 3, 3)
     # How much twist (about u) carrying the previous frame's rotation along the bone's motion adds
     # on top of the swing: Tw(delta_t) = swing_t^T @ M_t @ swing_{t-1}, M_t the min rotation d_{t-1} -> d_t.
@@ -131,12 +132,7 @@ def axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
 def _perpendicular(u: np.ndarray) -> np.ndarray:
     """Unit vectors (..., 3) perpendicular to u (..., 3)."""
     helper = np.where(np.abs(u[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    return _normalise(np.cross(u, helper), fallback=np.array([0.0, 0.0, 1.0]))
-
-
-def _normalise(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.where(n > 1e-12, v / np.maximum(n, 1e-300), fallback)
+    return unit(np.cross(u, helper), fallback=np.array([0.0, 0.0, 1.0]))
 
 
 def _collinear(vectors: np.ndarray) -> bool:

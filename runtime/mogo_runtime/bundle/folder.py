@@ -1,13 +1,14 @@
 """A mogo bundle: one folder of ONNX graphs described by `manifest.json` (docs/bundle.md; typed in manifest.py).
 
-`Bundle.load` trusts nothing: the manifest is parsed and checked field by field, every listed file must be a
-plain file inside the folder (no symlink, nothing outside) with the recorded size and sha256, and each graph
-must declare exactly the inputs and outputs the manifest promises. Every error names the file and the field.
+    bundle = Bundle.load("bundles/base")                   # everything checked: every file hashed, every graph
+                                                           # opened and its inputs and outputs held to the manifest
+    bundle = Bundle.load("bundles/base", variant="int8")   # what MotionGenerator does: only what the variant uses
 
-Graphs are opened from the bytes whose hash was checked (`read_verified`), never by path: what runs is what was
-verified, and onnxruntime reads nothing else. A graph must be self-contained: one whose tensors point to
-external-data files is refused (onnxruntime would read them from the model's folder, or for bytes the working
-folder, unlisted and unhashed).
+A bundle is untrusted: the manifest is parsed and checked field by field, every listed file must be a plain file
+directly in the folder (no link, nothing outside) of its recorded size, and every byte the runtime uses is checked
+against the manifest's sha256 as it is read (`read_verified`), never read again by path: a graph is opened from the
+bytes that were checked, so what runs is what was verified. A graph must be self-contained: one whose tensors point
+to external-data files is refused (onnxruntime would read them from the model's folder, unlisted and unhashed).
 """
 from __future__ import annotations
 
@@ -16,10 +17,10 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from .manifest import DTYPES, GRAPHS, BundleError, Manifest, ModelDims
+from .manifest import Manifest
 from .onnxfile import ProtobufError, external_data
+from .sections import DTYPES, GRAPHS, BundleError, ModelDims
 
-__all__ = ["Bundle", "BundleError", "GRAPHS", "sha256_file"]
 MANIFEST_MAX_BYTES = 16 << 20   # a real manifest is ~30 KB; refuse to parse anything huge
 GRAPH_MAX_BYTES = (2 << 30) - 1  # protobuf's limit: onnxruntime cannot parse a larger self-contained ONNX file
 
@@ -30,6 +31,23 @@ def sha256_file(path: Path) -> str:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+def read_manifest(folder: str | Path) -> Manifest:
+    """A bundle folder's manifest, parsed and checked (no other file is opened)."""
+    path = Path(folder)
+    mpath = path / "manifest.json"
+    if not path.is_dir():
+        raise BundleError(f"{path}: bundle folder not found")
+    if not mpath.is_file():
+        raise BundleError(f"{mpath}: manifest missing (not a mogo bundle, or an export that did not finish)")
+    if mpath.stat().st_size > MANIFEST_MAX_BYTES:
+        raise BundleError(f"{mpath}: {mpath.stat().st_size} bytes, more than a manifest can be")
+    try:
+        data = json.loads(mpath.read_bytes())
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
+        raise BundleError(f"{mpath}: not valid JSON ({type(e).__name__}: {e})") from None
+    return Manifest.parse(data, str(mpath))
 
 
 @dataclass
@@ -50,45 +68,30 @@ class Bundle:
         return list(self.manifest.variants)
 
     @classmethod
-    def load(cls, path: str | Path, verify_hashes: bool = True, check_graphs: bool = True,
-             variants: list[str] | None = None, hash_graphs_on_open: bool = False) -> "Bundle":
-        """`variants`: check only the files these variants use (plus every non-graph file); None = all.
-        `hash_graphs_on_open`: for a caller that opens the graphs right away (`session` hashes the bytes it hands
-        onnxruntime), the graph files' hashes are not also checked here: every graph byte is hashed once.
-
-        A generator that runs int8 then never reads (or hashes) the 90 MB fp32 text encoder: cold start drops
-        from ~1.9 s to ~0.7 s on a base bundle (benchmarks/NOTES.md)."""
-        path = Path(path)
-        mpath = path / "manifest.json"
-        if not path.is_dir():
-            raise BundleError(f"{path}: bundle folder not found")
-        if not mpath.is_file():
-            raise BundleError(f"{mpath}: manifest missing (not a mogo bundle, or an export that did not finish)")
-        if mpath.stat().st_size > MANIFEST_MAX_BYTES:
-            raise BundleError(f"{mpath}: {mpath.stat().st_size} bytes, more than a manifest can be")
-        try:
-            data = json.loads(mpath.read_bytes())
-        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
-            raise BundleError(f"{mpath}: not valid JSON ({type(e).__name__}: {e})") from None
-        bundle = cls(path, Manifest.parse(data, str(mpath)))
-        unknown = [v for v in variants or () if v not in bundle.manifest.variants]
-        if unknown:
-            raise BundleError(f"{path}: unknown variant {', '.join(map(repr, unknown))}; this bundle has "
-                              f"{', '.join(bundle.variants)}")
-        used = {bundle.manifest.variants[v][g].file for v in variants or bundle.variants for g in GRAPHS}
+    def load(cls, path: str | Path, variant: str | None = None) -> "Bundle":
+        """The bundle in folder `path`. Without `variant` every listed file is checked now: hashed, and each graph
+        opened and held to the manifest's inputs and outputs. With `variant`, only that variant's files must be
+        there, at their sizes; their bytes are checked as they are read, each once (an int8 generator never reads
+        the 90 MB fp32 text encoder: cold start ~1.9 s -> ~0.2 s on base, benchmarks/NOTES.md)."""
+        bundle = cls(Path(path), read_manifest(path))
+        if variant is not None and variant not in bundle.manifest.variants:
+            raise BundleError(f"{path}: unknown variant {variant!r}; this bundle has {', '.join(bundle.variants)}")
         graph_files = {e.file for gs in bundle.manifest.variants.values() for e in gs.values()}
+        used = graph_files if variant is None else {e.file for e in bundle.manifest.variants[variant].values()}
         for name in bundle.manifest.files:
             if name in used or name not in graph_files:
-                bundle.check_file(name, verify_hashes and not (hash_graphs_on_open and name in used))
-        if check_graphs:
-            bundle.check_graph_signatures(variants)
+                bundle._listed_path(name)
+                if variant is None and name not in graph_files:   # graphs are hashed as their sessions open
+                    bundle.check_file(name)
+        if variant is None:
+            bundle.check_graph_signatures()
         return bundle
 
-    def check_file(self, name: str, verify_hash: bool = True) -> Path:
+    def check_file(self, name: str) -> Path:
         """A listed file: present, a regular file inside the bundle folder, of the recorded size and sha256."""
         size, digest = self.manifest.files[name]
         fpath = self._listed_path(name)
-        if verify_hash and sha256_file(fpath) != digest:
+        if sha256_file(fpath) != digest:
             raise BundleError(f"{fpath}: sha256 does not match the manifest (file corrupted or replaced)")
         return fpath
 
@@ -130,13 +133,9 @@ class Bundle:
                               f"{GRAPH_MAX_BYTES} bytes")
         return fpath
 
-    def graph_file(self, graph: str, variant: str = "fp32") -> Path:
+    def graph_path(self, graph: str, variant: str = "fp32") -> Path:
+        """Where a variant's graph file is, for messages (its bytes come from `read_verified`)."""
         return self.path / self.manifest.graph_file(graph, variant).file
-
-    def file(self, name: str) -> Path:
-        if name not in self.manifest.files:
-            raise BundleError(f"{self.path}: {name!r} is not part of this bundle")
-        return self.path / name
 
     def check_graph_signatures(self, variants: list[str] | None = None) -> None:
         """Each graph file declares the inputs/outputs (names, element types, ranks) that the manifest lists."""
@@ -144,31 +143,29 @@ class Bundle:
 
         opts = ort.SessionOptions()
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
-        seen: set[Path] = set()
+        seen: set[str] = set()
         for variant in variants or self.variants:
             for graph in GRAPHS:
-                fpath = self.graph_file(graph, variant)
-                if fpath in seen:
-                    continue
-                seen.add(fpath)
-                sess = self.session(graph, variant, opts)
-                self.check_session(graph, fpath, sess, variant)
+                name = self.manifest.graph_file(graph, variant).file
+                if name not in seen:
+                    seen.add(name)
+                    self.check_session(graph, self.session(graph, variant, opts), variant)
 
     def session(self, graph: str, variant: str, options):
         """An onnxruntime CPU session of `variant`'s `graph`, from the verified bytes of its file."""
         import onnxruntime as ort
 
-        fpath = self.graph_file(graph, variant)
-        data = self.read_verified(fpath.name)
+        data = self.read_verified(self.manifest.graph_file(graph, variant).file)
         try:
             return ort.InferenceSession(data, options, providers=["CPUExecutionProvider"])
         except Exception as e:   # onnxruntime raises its own types for a file it cannot parse
-            raise BundleError(f"{fpath}: onnxruntime cannot load it ({e})") from None
+            raise BundleError(f"{self.graph_path(graph, variant)}: onnxruntime cannot load it ({e})") from None
 
-    def check_session(self, graph: str, fpath: Path, sess, variant: str = "fp32") -> None:
+    def check_session(self, graph: str, sess, variant: str = "fp32") -> None:
         """An onnxruntime session of `variant`'s `graph` declares the inputs/outputs (names, element types, ranks,
         fixed sizes) that the manifest lists. A runtime that opens its sessions anyway checks them here, rather
         than opening every graph twice (check_graph_signatures does, for callers that run nothing)."""
+        fpath = self.graph_path(graph, variant)
         spec = self.manifest.graph_spec(graph, variant)
         where = "portable.step" if spec is not self.manifest.graphs[graph] else f"graphs.{graph}"
         for kind, actual in (("inputs", sess.get_inputs()), ("outputs", sess.get_outputs())):
@@ -193,7 +190,7 @@ class Bundle:
                                   f"is {value!r}")
 
     def total_bytes(self, variant: str = "fp32") -> int:
-        names = {self.graph_file(g, variant).name for g in GRAPHS}
+        names = {self.manifest.graph_file(g, variant).file for g in GRAPHS}
         graph_files = {e.file for gs in self.manifest.variants.values() for e in gs.values()}
         extra = [n for n in self.manifest.files if n not in graph_files]
         return sum(self.manifest.files[n][0] for n in names | set(extra))
