@@ -19,8 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
-import sys
 import time
 
 _T_START = time.perf_counter()   # before any heavy import: the cold case's clock starts here

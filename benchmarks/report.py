@@ -1,7 +1,7 @@
 """The benchmark report's Markdown (`benchmarks.run` writes it to results/latest.md and prints it)."""
 from __future__ import annotations
 
-from .cases import MOTION_FRAMES
+from .common import MOTION_FRAMES
 from .crowd import crowd_section
 
 

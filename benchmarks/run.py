@@ -24,7 +24,7 @@ from pathlib import Path
 from mogo_runtime.bundle import read_manifest
 from mogo_runtime.bundle.manifest import INT8_FIXED, PORTABLE, Manifest
 
-from .cases import motion_tokens
+from .common import motion_tokens
 from .report import _med, markdown
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -37,7 +37,8 @@ from typing import NamedTuple
 import numpy as np
 from tqdm import tqdm
 
-from mogo_runtime.kinematics.features import load_mean_std, normalize, recover_from_ric
+from mogo_export.data.dataset import load_mean_std, normalize
+from mogo_runtime.kinematics.features import recover_from_ric
 
 REACT_WINDOW_S = 2.0         # the classifier's shortest training crop (40 frames at 20 fps)
 SETTLE_S = 1.0               # each segment is judged without its first second

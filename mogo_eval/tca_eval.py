@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo_runtime.kinematics.features import load_mean_std
+from mogo_export.data.dataset import load_mean_std
 from mogo_runtime.tca import CaptionIndex, OfflineAligner, sentence
 
 from .paraphrases import SETS

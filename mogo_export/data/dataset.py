@@ -25,7 +25,7 @@ from typing import Iterator, NamedTuple
 
 import numpy as np
 
-from mogo_runtime.kinematics.features import FeatureLayout, denormalize as _denormalize, load_mean_std, normalize as _normalize
+from mogo_runtime.kinematics.features import FeatureLayout
 from mogo_runtime.kinematics.skeleton import get_skeleton
 
 SPLITS = ("train", "val", "test")
@@ -206,7 +206,46 @@ class MotionDataset:
 
     def normalize(self, features: np.ndarray) -> np.ndarray:
         """(features - Mean) / Std, with this dataset's statistics."""
-        return _normalize(features, self.mean, self.std)
+        return normalize(features, self.mean, self.std)
 
     def denormalize(self, features: np.ndarray) -> np.ndarray:
-        return _denormalize(features, self.mean, self.std)
+        return denormalize(features, self.mean, self.std)
+
+
+def normalize(features: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    _check_stats(features, mean, std)
+    return (features - mean) / std
+
+
+def denormalize(features: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    _check_stats(features, mean, std)
+    return features * std + mean
+
+
+def _check_stats(features, mean, std) -> None:
+    d = np.shape(features)[-1]
+    if np.shape(mean) != (d,) or np.shape(std) != (d,):
+        raise ValueError(f"mean/std must be ({d},) for features (..., {d}), got {np.shape(mean)} and {np.shape(std)}")
+
+
+def load_mean_std(directory, dim: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Read a dataset's Mean.npy and Std.npy (float32, shape (D,)); check D against `dim` if given."""
+    directory = Path(directory)
+    arrays = []
+    for name in ("Mean.npy", "Std.npy"):
+        path = directory / name
+        if not path.is_file():
+            raise FileNotFoundError(f"feature statistics file missing: {path}")
+        a = np.load(path, allow_pickle=False)
+        if a.ndim != 1 or (dim is not None and a.shape[0] != dim):
+            want = f"({dim},)" if dim is not None else "(D,)"
+            raise ValueError(f"{path}: expected shape {want}, got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{path}: contains non-finite values")
+        arrays.append(a.astype(np.float32))
+    mean, std = arrays
+    if mean.shape != std.shape:
+        raise ValueError(f"{directory}: Mean.npy {mean.shape} and Std.npy {std.shape} differ in shape")
+    if np.any(std <= 0):
+        raise ValueError(f"{directory / 'Std.npy'}: has {int(np.sum(std <= 0))} entries <= 0")
+    return mean, std

@@ -14,11 +14,55 @@ from __future__ import annotations
 import numpy as np
 
 from mogo_runtime.kinematics.features import FeatureLayout
-from mogo_runtime.kinematics.quaternion import qbetween, qinv, qmul, qrot, quaternion_to_cont6d
+from mogo_runtime.kinematics.quaternion import check_last, qinv, qrot, quaternion_to_matrix
 from mogo_runtime.kinematics.skeleton import HUMANML3D, Skeleton
 
 _Y_UP = np.array([0.0, 1.0, 0.0])
 _Z_FORWARD = np.array([0.0, 0.0, 1.0])
+_EPS = 1e-12
+
+
+# Quaternion helpers of the joints -> features direction (the runtime's kinematics.quaternion has the others).
+
+def qmul(q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Hamilton product q * r (rotation r, then q); q and r broadcast against each other."""
+    q, r = check_last(q, 4, "q"), check_last(r, 4, "r")
+    w0, x0, y0, z0 = np.moveaxis(q, -1, 0)
+    w1, x1, y1, z1 = np.moveaxis(r, -1, 0)
+    return np.stack([
+        w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1,
+        w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
+        w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1,
+        w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1,
+    ], axis=-1)
+
+
+def qbetween(v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
+    """The shortest-arc unit quaternion that rotates direction v0 onto direction v1.
+
+    Same formula as HumanML3D (w = |v0||v1| + v0.v1, xyz = v0 x v1, then normalise), so w >= 0.
+    Where v0 and v1 are opposite that quaternion is zero; HumanML3D then returns NaN, here it is a
+    half turn about an axis perpendicular to v0 instead.
+    """
+    v0, v1 = np.broadcast_arrays(check_last(v0, 3, "v0"), check_last(v1, 3, "v1"))
+    w = np.sqrt((v0 ** 2).sum(-1, keepdims=True) * (v1 ** 2).sum(-1, keepdims=True)) + (v0 * v1).sum(-1, keepdims=True)
+    q = np.concatenate([w, np.cross(v0, v1)], axis=-1)
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    opposite = norm[..., 0] < _EPS * np.maximum(np.linalg.norm(v0, axis=-1) * np.linalg.norm(v1, axis=-1), _EPS)
+    if np.any(opposite):
+        a = v0[opposite]
+        # any axis perpendicular to v0: cross with the world axis it is least aligned with
+        axis = np.cross(a, np.eye(3)[np.argmin(np.abs(a), axis=-1)])
+        q = q.astype(np.result_type(q.dtype, np.float32), copy=True)
+        q[opposite] = np.concatenate([np.zeros(axis.shape[:-1] + (1,)), axis], axis=-1)
+        norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    return q / norm
+
+
+def quaternion_to_cont6d(q: np.ndarray) -> np.ndarray:
+    """(..., 4) -> (..., 6): the first two columns of the rotation matrix, column 0 then column 1."""
+    m = quaternion_to_matrix(q)
+    return np.concatenate([m[..., 0], m[..., 1]], axis=-1)
 
 
 def gaussian_filter1d(x: np.ndarray, sigma: float, axis: int = 0, truncate: float = 4.0) -> np.ndarray:

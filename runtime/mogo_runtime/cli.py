@@ -345,7 +345,7 @@ def _read_lines(stream) -> queue.Queue:
 
 def cmd_info(args) -> int:
     path = args.bundle if args.bundle is not None else default_bundle()[0]
-    bundle = Bundle(path, read_manifest(path))       # each file's size and hash are checked below, one by one
+    bundle = Bundle(path, read_manifest(path))       # each file's size and sha256 are checked below, one by one
     m, d = bundle.manifest, bundle.dims
     producer = m.producer or {}
     made = {k: producer[k] for k in ("name", "version", "torch", "onnx", "onnxruntime", "opset", "created")
@@ -373,7 +373,7 @@ def cmd_info(args) -> int:
     failed = []
     for name, (size, digest) in m.files.items():
         try:
-            bundle.check_file(name)
+            bundle.read_verified(name)
         except BundleError:
             failed.append(name)
         print(f"  {name:<28} {_mb(size):>9}  sha256 {digest[:16]}  {'FAILED' if name in failed else 'OK'}")

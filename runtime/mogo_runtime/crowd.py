@@ -11,19 +11,15 @@
             walker.set_prompt("a person turns left")                # from this character's next token
     crowd.remove(walker)
 
-A character is an endless stream (endless.StreamContext: context rebuilds, END restarting the prompt, a prompt
-switch keeping nothing, one draw per level from its own generator) whose frames come through a
-decoding.FrameMaker, as `gen.stream(prompt, seed=seed)`'s do; only its step call is shared. So its tokens and
-frames are bit for bit what that stream gives it alone, whoever else is in the crowd (tests/runtime/test_crowd.py).
-That rests on the graphs computing each row on its own, which was checked on `base`: a row's logits and decoded
-features are identical alone and in a batch of 24.
+A character is an endless stream (endless.StreamContext) whose frames come through a decoding.FrameMaker, as
+`gen.stream(prompt, seed=seed)`'s do; only its step call is shared. So its tokens and frames are bit for bit what
+that stream gives it alone, whoever else is in the crowd (tests/runtime/test_crowd.py): the graphs compute each row
+on its own (checked on `base`: a row's logits and features are identical alone and in a batch of 24).
 
-The step graph must be the fixed-capacity one (variant `portable`, or `int8_fixed`: the same graph in int8 with one
-activation scale per row, where per-tensor int8 would make a character's numbers depend on its neighbours): each
-row carries its own `position`, so characters at different points of their contexts share one call. A context
-rebuild (every `refresh` tokens, at END and at a prompt switch) feeds its tokens one call each; the characters
-rebuilding in the same tick share those calls, and every character's last token of the tick goes into one final
-call over the whole crowd.
+The step graph must be the fixed-capacity one (`portable`, or `int8_fixed`: per-row int8, where per-tensor int8
+would make a character's numbers depend on its neighbours): each row carries its own `position`, so characters at
+different points of their contexts share one call. Context rebuilds feed their tokens one call each, shared by the
+characters rebuilding in the same tick; every character's last token goes into one call over the whole crowd.
 """
 from __future__ import annotations
 
@@ -32,8 +28,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .bundle.sampling import SamplingConfig
-from .decoding import MAX_CHUNK, FrameMaker, Frames
+from .bundle.sampling import SamplingConfig, sampling_or
+from .decoding import FrameMaker, Frames, check_chunk
 from .endless import StreamContext
 from .engine import FixedCacheBackend
 from .outputs.motion import Motion
@@ -82,15 +78,15 @@ class Character:
         self.switches.append((self.count, text))
 
     def motion(self) -> Motion:
-        """Everything this character has done so far, as one Motion (a character added with record=True)."""
+        """Everything this character has done and been decoded so far, as one Motion (added with record=True)."""
         if self.recorded is None:
             raise ValueError(f"{self!r} was not added with record=True: its tokens and frames were not kept")
         gen, (tokens, features, joints) = self.crowd.gen, self.recorded
-        dims = gen.dims
-        return Motion(text=self.text, features=np.concatenate(features) if features else np.zeros((0, dims.feature_dim), np.float32),
-                      joints=np.concatenate(joints) if joints else np.zeros((0, gen.skeleton.num_joints, 3), np.float32),
-                      fps=dims.fps, tokens=np.array(tokens, np.int64).reshape(-1, dims.num_levels),
-                      skeleton=gen.skeleton, seed=self.seed)
+        none = np.zeros((0, gen.dims.feature_dim), np.float32), np.zeros((0, gen.skeleton.num_joints, 3), np.float32)
+        return Motion(text=self.text, features=np.concatenate([none[0], *features]),
+                      joints=np.concatenate([none[1], *joints]), fps=gen.dims.fps,
+                      tokens=np.array(tokens, np.int64).reshape(-1, gen.dims.num_levels), skeleton=gen.skeleton,
+                      seed=self.seed)
 
     def __repr__(self) -> str:
         return f"Character({self.id}, {self.text!r}, seed={self.seed}, tokens={self.count})"
@@ -112,14 +108,8 @@ class Crowd:
         if not gen.endless:
             raise ValueError("this bundle was not trained for endless streams (its manifest has no 'streaming' "
                              "section): a crowd's characters stream without end")
-        if sampling is None:
-            sampling = gen.sampling_defaults
-        elif not isinstance(sampling, SamplingConfig):
-            raise ValueError(f"sampling must be a SamplingConfig or None (the bundle's defaults), got {sampling!r}")
-        if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or not 1 <= chunk <= MAX_CHUNK:
-            raise ValueError(f"chunk must be an int in [1, {MAX_CHUNK}], got {chunk!r}")
-        self.gen, self.backend, self.chunk = gen, gen.backend, int(chunk)
-        self.policy = StepPolicy(sampling, gen.dims)
+        self.gen, self.backend, self.chunk = gen, gen.backend, check_chunk(chunk)
+        self.policy = StepPolicy(sampling_or(gen.sampling_defaults, sampling), gen.dims)
         self.characters: list[Character] = []      # characters[i].slot == i owns rows [i * rows, (i + 1) * rows)
         # the cache of every row, allocated for more characters than there are (doubling as they come), so adding
         # one copies nothing; the rows in use are the first len(characters) * rows

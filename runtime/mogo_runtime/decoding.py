@@ -20,6 +20,7 @@ import numpy as np
 
 from .bundle.sampling import SamplingConfig
 from .bundle.sections import ModelDims, StreamingSpec
+from .checks import as_int
 from .clock import NO_CLOCK, StageClock
 from .endless import EndlessLoop
 from .kinematics.features import recover_from_ric
@@ -31,7 +32,9 @@ MAX_CHUNK = 1024   # tokens per decode; more only delays frames (and the window 
 
 
 class Backend(Protocol):
-    """What the loop needs from an inference engine. Arrays are numpy; past is opaque to the loop."""
+    """What the loop needs from an inference engine (engine.py; mogo_export.reference for torch). Arrays are numpy;
+    past is opaque to the loop. step: tokens (B, S, L) -> (logits (B, S, L, K + 1), new past); decode: tokens
+    (B, T, L) -> de-normalised features (B, T * downsample, feature_dim), codebook lookup and causal decoder."""
 
     dims: ModelDims
 
@@ -39,11 +42,9 @@ class Backend(Protocol):
 
     def empty_past(self, rows: int): ...                                          # rows: step rows of the batch
 
-    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past):             # tokens (B, S, L) int64
-        """-> (logits (B, S, L, K + 1) float32, new past)."""
+    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past): ...
 
-    def decode(self, tokens: np.ndarray) -> np.ndarray:                         # (B, T, L) int64
-        """Codebook lookup + causal decoder: -> de-normalised features (B, T * downsample, feature_dim)."""
+    def decode(self, tokens: np.ndarray) -> np.ndarray: ...
 
 
 def generate_tokens(backend: Backend, text_emb: np.ndarray, sampling: SamplingConfig,
@@ -95,6 +96,11 @@ def decode_tokens(backend: Backend, token_seqs: list[np.ndarray]) -> list[np.nda
     return [feats[b, :len(seq) * ds] for b, seq in enumerate(token_seqs)]
 
 
+def check_chunk(chunk: int) -> int:
+    """Tokens per decode: an int in [1, MAX_CHUNK], else ValueError."""
+    return as_int("chunk", chunk, f"an int in [1, {MAX_CHUNK}]", 1, MAX_CHUNK)
+
+
 @dataclass
 class Frames:
     """A stream's new frames: frame numbers index .. index + n - 1 of its motion."""
@@ -117,9 +123,7 @@ class FrameMaker:
     """
 
     def __init__(self, dims: ModelDims, skeleton: Skeleton, chunk: int = 1):
-        if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or not 1 <= chunk <= MAX_CHUNK:
-            raise ValueError(f"chunk must be an int in [1, {MAX_CHUNK}], got {chunk!r}")
-        self.dims, self.chunk = dims, int(chunk)
+        self.dims, self.chunk = dims, check_chunk(chunk)
         self.tokens = np.zeros((dims.receptive_field + self.chunk, dims.num_levels), np.int64)
         self.count = 0      # tokens pushed
         self.pending = 0    # tokens pushed whose frames were not made yet
@@ -206,8 +210,8 @@ class GenerationTask:
         return self._collect(self.steps(text_emb, seeds), len(seeds), progress)
 
     def _collect(self, steps, batch: int, progress) -> list[np.ndarray]:
-        if progress is not None:
-            steps = _report(steps, progress, self.fixed_tokens or self.max_tokens)
+        if progress is not None:        # called as each step's tokens are handed on
+            steps = (progress(t + 1, self.fixed_tokens or self.max_tokens) or item for t, item in enumerate(steps))
         return collect_tokens(steps, batch, self.backend.dims.num_levels)
 
     def run(self, text_emb: np.ndarray, seeds: list[int],
@@ -258,8 +262,3 @@ class GenerationTask:
             features = self.backend.decode(maker.window(n)[None])[0]
         return maker.frames_from(features, self.clock)
 
-
-def _report(steps, progress: Callable[[int, int], None], limit: int):
-    for t, item in enumerate(steps):
-        yield item
-        progress(t + 1, limit)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bundle.folder import Bundle
-from .bundle.sections import BundleError, ModelDims
+from .bundle.sections import GRAPHS, BundleError, ModelDims
 from .text import TextEncoderSession, check_threads, session_options
 
 
@@ -26,8 +26,6 @@ class NonFiniteOutput(BundleError):
 
 def open_backend(bundle: Bundle, variant: str = "fp32", threads: int = 1) -> "OrtBackend":
     """The backend for one variant: the portable step's fixed cache through FixedCacheBackend, else OrtBackend."""
-    if variant not in bundle.manifest.variants:
-        raise ValueError(f"unknown variant {variant!r}; bundle {bundle.path} has {', '.join(bundle.variants)}")
     return (FixedCacheBackend if bundle.manifest.fixed_cache(variant) else OrtBackend)(bundle, variant, threads)
 
 
@@ -49,11 +47,10 @@ class OrtBackend:
         self.dims: ModelDims = bundle.dims
         manifest = bundle.manifest
         self.one_row = manifest.row_by_row(variant)       # graphs that run one row per call
-        te = manifest.graph_file("text_encoder", variant).file
+        files = manifest.graph_file("text_encoder", variant).file, manifest.text_encoder.tokenizer
         try:
-            self.text = TextEncoderSession(bundle.read_verified(te), bundle.read_verified(manifest.text_encoder.tokenizer),
-                                           self.threads, names=(str(bundle.path / te),
-                                                                str(bundle.path / manifest.text_encoder.tokenizer)))
+            self.text = TextEncoderSession(*map(bundle.read_verified, files), self.threads,
+                                           names=tuple(str(bundle.path / f) for f in files))
         except ValueError as e:
             raise BundleError(str(e)) from None
         if self.text.dim != self.dims.text_dim or self.text.settings.max_length != manifest.text_encoder.max_length:
@@ -61,11 +58,10 @@ class OrtBackend:
                               f"cuts at {self.text.settings.max_length} tokens; manifest model.text_dim is "
                               f"{self.dims.text_dim}, text_encoder.max_length {manifest.text_encoder.max_length}")
         opts = session_options(self.threads)
-        sessions = {graph: bundle.session(graph, variant, opts) for graph in ("step", "lookup", "decoder")}
-        self.step_session, self.lookup_session, self.decoder_session = (sessions[g] for g in ("step", "lookup",
-                                                                                                "decoder"))
+        self.step_session, self.lookup_session, self.decoder_session = sessions = [
+            bundle.session(graph, variant, opts) for graph in ("step", "lookup", "decoder")]
         # the sessions we run are the ones checked against the manifest (Bundle.load for a variant does not)
-        for graph, sess in (("text_encoder", self.text.session), *sessions.items()):
+        for graph, sess in zip(GRAPHS, (self.text.session, *sessions)):
             bundle.check_session(graph, sess, variant)
         self.past_names = manifest.past_names
         self.output_names = ["logits", *manifest.present_names]
@@ -100,9 +96,13 @@ class OrtBackend:
             return np.concatenate([self._decode(tokens[r:r + 1]) for r in range(len(tokens))])
         return self._decode(tokens)
 
-    def _decode(self, tokens: np.ndarray) -> np.ndarray:
+    def lookup(self, tokens: np.ndarray) -> np.ndarray:
+        """The codebook lookup alone: (B, T, L) tokens -> the decoder's input (B, T, latent_dim)."""
         (latent,) = self.lookup_session.run(["latent"], {"tokens": np.ascontiguousarray(tokens, dtype=np.int64)})
-        (features,) = self.decoder_session.run(["features"], {"latent": self._finite("lookup", latent)})
+        return self._finite("lookup", latent)
+
+    def _decode(self, tokens: np.ndarray) -> np.ndarray:
+        (features,) = self.decoder_session.run(["features"], {"latent": self.lookup(tokens)})
         want = (len(tokens), tokens.shape[1] * self.dims.downsample, self.dims.feature_dim)
         if features.shape != want:   # a wrong model.downsample would otherwise drop or invent frames silently
             raise BundleError(f"{self.bundle.graph_path('decoder', self.variant)}: decoded {tokens.shape[1]} tokens "

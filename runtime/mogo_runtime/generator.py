@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Callable, Iterator
 import numpy as np
 
 from .bundle.folder import Bundle
-from .bundle.sampling import SamplingConfig
+from .bundle.sampling import SamplingConfig, sampling_or
 from .checks import as_real
 from .clock import NO_CLOCK, StageClock
 from .decoding import Frames, Generated, GenerationTask
@@ -211,10 +211,7 @@ class MotionGenerator:
     def _prepare(self, texts: list[str], seconds, seed, sampling, align, clock=None):
         """What generate and stream share: checked arguments, the task, conditioning and seeds."""
         fixed = self.tokens_for(seconds)
-        if sampling is None:
-            sampling = self.sampling_defaults
-        elif not isinstance(sampling, SamplingConfig):
-            raise ValueError(f"sampling must be a SamplingConfig or None (the bundle's defaults), got {sampling!r}")
+        sampling = sampling_or(self.sampling_defaults, sampling)
         seeds = expand_seeds(seed, len(texts))
         clock = clock or NO_CLOCK
         with clock("text"):

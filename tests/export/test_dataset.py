@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from mogo_export.data import procedural as P
-from mogo_export.data.dataset import MotionDataset, Segment, parse_caption_line
+from mogo_export.data.dataset import (MotionDataset, Segment, denormalize, load_mean_std, normalize,
+                                      parse_caption_line)
 
 LINE = "a person walks forward.#a/DET person/NOUN walk/VERB forward/ADV#0.0#0.0"
 
@@ -186,3 +187,27 @@ def test_parse_caption_line():
     assert (c.start, c.end) == (0.0, 0.0)
     with pytest.raises(ValueError, match="f:2: empty caption"):
         parse_caption_line("#a/DET#0.0#0.0", "f:2")
+
+
+def test_normalize_round_trip_and_dataset_stats(humanml3d_fixture):
+    feats = np.load(humanml3d_fixture / "new_joint_vecs" / "012314.npy")
+    mean, std = load_mean_std(humanml3d_fixture, dim=263)
+    assert mean.shape == std.shape == (263,) and mean.dtype == np.float32
+    z = normalize(feats, mean, std)
+    # the clip is one sample of the dataset: its normalised values are of order one, not raw scale
+    assert 0.1 < np.abs(z).mean() < 3
+    np.testing.assert_allclose(denormalize(z, mean, std), feats, atol=1e-5)
+    with pytest.raises(ValueError, match=r"\(263,\)"):
+        normalize(feats, mean[:-1], std[:-1])
+
+
+def test_load_mean_std_names_the_bad_file(tmp_path):
+    np.save(tmp_path / "Mean.npy", np.zeros(263, np.float32))
+    with pytest.raises(FileNotFoundError, match="Std.npy"):
+        load_mean_std(tmp_path)
+    np.save(tmp_path / "Std.npy", np.ones(251, np.float32))
+    with pytest.raises(ValueError, match=r"Std\.npy: expected shape \(263,\)"):
+        load_mean_std(tmp_path, dim=263)
+    np.save(tmp_path / "Std.npy", np.zeros(263, np.float32))
+    with pytest.raises(ValueError, match="Std.npy.*<= 0"):
+        load_mean_std(tmp_path)

@@ -73,7 +73,7 @@ def test_lookup_and_decoder_graphs_match_torch(tiny, batch, tokens):
 def test_fp32_graphs_use_only_standard_operators(tiny):
     bundle = Bundle.load(tiny["bundle"])
     for graph in ("text_encoder", "step", "lookup", "decoder"):
-        model = onnx.load(str(bundle.graph_file(graph, "fp32")))
+        model = onnx.load(str(bundle.graph_path(graph, "fp32")))
         domains = {n.domain for n in model.graph.node}
         assert domains <= {"", "ai.onnx"}, (graph, domains)
         assert not {n.op_type for n in model.graph.node} & {"If", "Loop", "Scan"}

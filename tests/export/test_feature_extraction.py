@@ -2,9 +2,10 @@
 import numpy as np
 import pytest
 
-from mogo_export.data.humanml3d import canonicalize, extract_features, gaussian_filter1d
+from mogo_export.data.humanml3d import (canonicalize, extract_features, gaussian_filter1d, qbetween, qmul,
+                                        quaternion_to_cont6d)
 from mogo_runtime.kinematics.features import FeatureLayout, recover_from_ric, recover_root_rot_pos
-from mogo_runtime.kinematics.quaternion import qinv, qrot
+from mogo_runtime.kinematics.quaternion import qinv, qrot, quaternion_to_matrix
 from mogo_runtime.kinematics.skeleton import HUMANML3D, KIT
 
 LAYOUT = FeatureLayout(22)
@@ -117,3 +118,41 @@ def test_bad_input_is_named():
     bad[2, 3, 1] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
         extract_features(bad)
+
+
+# The quaternion helpers of extraction: conventions (w first, q*r applies r first) against rotation matrices.
+
+_rng = np.random.default_rng(0)
+
+
+def _rand_q(*shape):
+    q = _rng.normal(size=shape + (4,))
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def test_qmul_applies_right_operand_first_and_qinv_inverts():
+    q, r, v = _rand_q(10), _rand_q(10), _rng.normal(size=(10, 3))
+    np.testing.assert_allclose(qrot(qmul(q, r), v), qrot(q, qrot(r, v)), atol=1e-12)
+    np.testing.assert_allclose(qmul(q, qinv(q)), np.tile([1.0, 0, 0, 0], (10, 1)), atol=1e-12)
+    # broadcasting: one quaternion against many
+    np.testing.assert_allclose(qmul(q[:1], r), qmul(np.repeat(q[:1], 10, 0), r), atol=1e-12)
+
+
+def test_qbetween_rotates_v0_onto_v1_including_opposite():
+    v0, v1 = _rng.normal(size=(50, 3)), _rng.normal(size=(50, 3))
+    v1[0] = -3 * v0[0]  # antiparallel: HumanML3D would give NaN
+    q = qbetween(v0, v1)
+    assert np.all(np.isfinite(q)) and np.all(q[1:, 0] >= 0)
+    unit = lambda a: a / np.linalg.norm(a, axis=-1, keepdims=True)  # noqa: E731
+    np.testing.assert_allclose(unit(qrot(q, v0)), unit(v1), atol=1e-9)
+
+
+def test_cont6d_is_the_matrix_first_columns():
+    q = _rand_q(200)
+    m = quaternion_to_matrix(q)
+    np.testing.assert_allclose(quaternion_to_cont6d(q), np.concatenate([m[..., :, 0], m[..., :, 1]], -1))
+
+
+def test_bad_shapes_raise():
+    with pytest.raises(ValueError, match=r"\(\.\.\., 4\)"):
+        qmul(np.zeros(3), np.zeros(4))

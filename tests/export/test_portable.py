@@ -109,7 +109,7 @@ def test_the_portable_graphs_follow_the_rules_and_the_manifest_gives_every_size(
     assert m.portable.opset == PORTABLE_OPSET == 17
     assert m.portable.capacity == required_capacity(m.model, m.streaming) == m.model.max_tokens + 1
     for graph in GRAPHS:
-        model = onnx.load(str(bundle.graph_file(graph, "portable")))
+        model = onnx.load(str(bundle.graph_path(graph, "portable")))
         assert portable_problems(model, PORTABLE_OPSET) == [], graph
     # everything but the batch is a number a consumer can allocate from
     step = manifest["portable"]["step"]
@@ -128,7 +128,7 @@ def test_every_portable_graph_runs_at_the_lowest_opset_and_one_lower_fails(tiny)
     rng = np.random.default_rng(0)
     lowest = {}
     for graph in GRAPHS:
-        path = bundle.graph_file(graph, "portable")
+        path = bundle.graph_path(graph, "portable")
         model = onnx.load(str(path))
         feed = graph_feed(str(path), tiny, rng)
         want = session(model).run(None, feed)
@@ -158,7 +158,7 @@ def test_ort_files_load_run_and_compute_what_their_sources_compute(tiny):
     sizes = {}
     for variant, source in m.ort.variants.items():
         for graph in GRAPHS:
-            ort_path, onnx_path = bundle.graph_file(graph, variant), bundle.graph_file(graph, source)
+            ort_path, onnx_path = bundle.graph_path(graph, variant), bundle.graph_path(graph, source)
             assert ort_path.suffix == ".ort" and ort_path.stem == onnx_path.stem
             feed = graph_feed(str(onnx_path), tiny, rng)
             got, want = session(ort_path).run(None, feed), session(onnx_path).run(None, feed)

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from mogo_runtime.kinematics.features import FeatureLayout, denormalize, load_mean_std, normalize, recover_from_ric
+from mogo_runtime.kinematics.features import FeatureLayout, recover_from_ric
 from mogo_runtime.kinematics.skeleton import HUMANML3D, KIT
 
 
@@ -59,25 +59,3 @@ def test_recover_rejects_mismatched_dim(clip):
         recover_from_ric(feats[0], 22)  # a single frame, no time axis
 
 
-def test_normalize_round_trip_and_dataset_stats(clip, humanml3d_fixture):
-    feats, _ = clip
-    mean, std = load_mean_std(humanml3d_fixture, dim=263)
-    assert mean.shape == std.shape == (263,) and mean.dtype == np.float32
-    z = normalize(feats, mean, std)
-    # the clip is one sample of the dataset: its normalised values are of order one, not raw scale
-    assert 0.1 < np.abs(z).mean() < 3
-    np.testing.assert_allclose(denormalize(z, mean, std), feats, atol=1e-5)
-    with pytest.raises(ValueError, match=r"\(263,\)"):
-        normalize(feats, mean[:-1], std[:-1])
-
-
-def test_load_mean_std_names_the_bad_file(tmp_path):
-    np.save(tmp_path / "Mean.npy", np.zeros(263, np.float32))
-    with pytest.raises(FileNotFoundError, match="Std.npy"):
-        load_mean_std(tmp_path)
-    np.save(tmp_path / "Std.npy", np.ones(251, np.float32))
-    with pytest.raises(ValueError, match=r"Std\.npy: expected shape \(263,\)"):
-        load_mean_std(tmp_path, dim=263)
-    np.save(tmp_path / "Std.npy", np.zeros(263, np.float32))
-    with pytest.raises(ValueError, match="Std.npy.*<= 0"):
-        load_mean_std(tmp_path)

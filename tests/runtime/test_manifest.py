@@ -10,6 +10,7 @@ import copy
 import json
 import re
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -121,42 +122,39 @@ def test_every_malformed_field_is_one_clear_error(portable_toy_bundle, manifest_
         assert err.startswith("mogo: error:") and "manifest.json" in err and err.count("\n") == 1, err
 
 
-@pytest.mark.parametrize("change, message", [
-    (lambda m: m["model"].update(fps=0), "field model.fps: expected a number in (0, 1000], got 0"),
-    (lambda m: m["model"].update(max_tokens="62"), "field model.max_tokens: expected an integer"),
-    (lambda m: m["model"].update(end_id=3), "field model.end_id: is 3"),
-    (lambda m: m.update(skeleton=[]), "field skeleton: must be a JSON object, got list"),
-    (lambda m: m["files"].update({"../outside.onnx": {"bytes": 1, "sha256": "0" * 64}}),
-     "a bundle file must be a plain file name"),
-    (lambda m: m["variants"]["fp32"]["step"].update(file="nowhere.onnx"), "variants.fp32.step.file: 'nowhere.onnx'"),
-    (lambda m: m["cache"].update(past="past.{layer}"), "field cache.past: a name template"),
-    (lambda m: m["graphs"]["step"]["outputs"][0].update(shape=["batch", "steps", 3, 5]), "should end in"),
-    (lambda m: m["sampling_defaults"].update(top_p=2.0), "top_p must be in (0, 1]"),
-    (lambda m: m.update(schema_version=1), "re-export the bundle"),
-    (lambda m: m["portable"].update(capacity=24), "field portable.capacity: is 24; the generation loop can hold 25"),
-    (lambda m: m["portable"].update(opset=18), "field portable.opset: expected an integer in [7, 17]"),
-    (lambda m: m.pop("portable"), "field portable: missing: variant 'portable' needs this section"),
-    (lambda m: m["variants"].pop("portable") and m["ort"]["variants"].pop("portable_ort")
-     and m["variants"].pop("portable_ort"), "field portable: the bundle has no 'portable' variant"),
-    (lambda m: m["portable"]["step"]["inputs"].pop(2), "field portable.step.inputs: names are"),
-    (lambda m: m["portable"]["step"]["inputs"][3].update(shape=["batch", 2, 26, 4]),
-     "'past_key_values.0.key' is float32 [batch, 2, 26, 4], expected float32 [batch, 2, 25, 4]"),
-    (lambda m: m["portable"]["step"]["inputs"][1].update(shape=["batch", "steps", 2]),
-     "'tokens' is int64 [batch, steps, 2], expected int64 [batch, 1, 2]"),
-    (lambda m: m["variants"]["portable"]["step"].update(quantization={"method": "dynamic"}),
-     "field variants.portable.step.quantization: the portable variant is fp32 only"),
-    (lambda m: m["ort"]["variants"].pop("int8_ort"), "field variants.int8_ort: .ort files belong to variants"),
-    (lambda m: m["variants"]["int8_ort"]["step"].update(file="step.int8.onnx"),
-     "field variants.int8_ort: an ORT-format variant has only .ort files"),
-    (lambda m: m["ort"]["variants"].update(int8_ort="int9"), "field ort.variants.int8_ort: 'int8_ort' converted from"),
-    (lambda m: m["ort"].update(required_operators="ops.config"), "'ops.config' is named by the manifest but not"),
-])
-def test_errors_name_the_field(toy_bundle, manifest_dict, tmp_path, change, message):  # noqa: F811
-    m = copy.deepcopy(manifest_dict)
-    change(m)
-    with pytest.raises(BundleError) as e:
-        Manifest.parse(m, "bundle/manifest.json")
-    assert message in str(e.value) and str(e.value).startswith("bundle/manifest.json: ")
+BAD_MANIFESTS = json.loads((Path(__file__).resolve().parents[1] / "golden" / "bad_manifests.json").read_text())
+
+
+def edited(manifest: dict, edits: list[dict]) -> dict:
+    """`manifest` with the edits of tests/golden/bad_manifests.json applied: set, delete or append at a JSON path."""
+    m = copy.deepcopy(manifest)
+    for edit in edits:
+        (verb, path), = ((k, v) for k, v in edit.items() if k in ("set", "delete", "append"))
+        parent = m
+        for key in path[:-1]:
+            parent = parent[key]
+        if verb == "set":
+            parent[path[-1]] = copy.deepcopy(edit["value"])
+        elif verb == "delete":
+            del parent[path[-1]]
+        else:
+            parent[path[-1]].append(copy.deepcopy(edit["value"]))
+    return m
+
+
+def test_bad_manifests_are_refused_naming_the_field(manifest_dict, capsys):
+    """Every case of the table that the JavaScript runtime's tests run too (js/test/manifest.test.mjs)."""
+    for name, setup in BAD_MANIFESTS["setups"].items():   # a setup alone parses: the cases fail for their own edit
+        assert Manifest.parse(edited(manifest_dict, setup), "bundle/manifest.json"), name
+    cases = BAD_MANIFESTS["cases"]
+    for case in cases:
+        m = edited(manifest_dict, BAD_MANIFESTS["setups"].get(case.get("with"), []) + case["edit"])
+        with pytest.raises(BundleError) as e:
+            Manifest.parse(m, "bundle/manifest.json")
+        message = str(e.value)
+        assert case["names"] in message and message.startswith("bundle/manifest.json: "), (case["why"], message)
+    with capsys.disabled():
+        print(f"\nbad manifests: {len(cases)} cases of tests/golden/bad_manifests.json refused, each naming its field")
 
 
 def test_a_symlinked_or_swapped_graph_is_refused(toy_bundle, tmp_path):  # noqa: F811

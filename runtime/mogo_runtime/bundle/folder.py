@@ -80,20 +80,13 @@ class Bundle:
         used = graph_files if variant is None else {e.file for e in bundle.manifest.variants[variant].values()}
         for name in bundle.manifest.files:
             if name in used or name not in graph_files:
-                bundle._listed_path(name)
                 if variant is None and name not in graph_files:   # graphs are hashed as their sessions open
-                    bundle.check_file(name)
+                    bundle.read_verified(name)
+                else:
+                    bundle._listed_path(name)
         if variant is None:
             bundle.check_graph_signatures()
         return bundle
-
-    def check_file(self, name: str) -> Path:
-        """A listed file: present, a regular file inside the bundle folder, of the recorded size and sha256."""
-        size, digest = self.manifest.files[name]
-        fpath = self._listed_path(name)
-        if sha256_file(fpath) != digest:
-            raise BundleError(f"{fpath}: sha256 does not match the manifest (file corrupted or replaced)")
-        return fpath
 
     def read_verified(self, name: str) -> bytes:
         """A listed file's bytes, checked against the manifest's size and sha256 after reading (so the bytes used

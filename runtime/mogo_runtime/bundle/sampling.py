@@ -44,3 +44,10 @@ class SamplingConfig:
 
 
 GREEDY = SamplingConfig(temperature=0.0)
+
+
+def sampling_or(defaults: SamplingConfig, sampling: SamplingConfig | None) -> SamplingConfig:
+    """`sampling`, or `defaults` (the bundle's) for None; ValueError for anything else."""
+    if sampling is not None and not isinstance(sampling, SamplingConfig):
+        raise ValueError(f"sampling must be a SamplingConfig or None (the bundle's defaults), got {sampling!r}")
+    return defaults if sampling is None else sampling

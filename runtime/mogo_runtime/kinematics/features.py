@@ -1,9 +1,9 @@
-"""The HumanML3D motion feature vector: its layout, features -> joints, and (de)normalisation."""
+"""The HumanML3D motion feature vector: its layout, and features -> joints (a dataset's Mean/Std, which the exported
+decoder applies itself, are read by mogo_export.data.dataset)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import accumulate
-from pathlib import Path
 
 import numpy as np
 
@@ -105,42 +105,3 @@ def recover_from_ric(features: np.ndarray, num_joints: int) -> np.ndarray:
     pos[..., 2] += r_pos[..., None, 2]
     joints = np.concatenate([r_pos[..., None, :], pos], axis=-2)  # (..., T, J, 3)
     return joints.astype(out_dtype)
-
-
-def normalize(features: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
-    _check_stats(features, mean, std)
-    return (features - mean) / std
-
-
-def denormalize(features: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
-    _check_stats(features, mean, std)
-    return features * std + mean
-
-
-def _check_stats(features, mean, std) -> None:
-    d = np.shape(features)[-1]
-    if np.shape(mean) != (d,) or np.shape(std) != (d,):
-        raise ValueError(f"mean/std must be ({d},) for features (..., {d}), got {np.shape(mean)} and {np.shape(std)}")
-
-
-def load_mean_std(directory, dim: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Read a dataset's Mean.npy and Std.npy (float32, shape (D,)); check D against `dim` if given."""
-    directory = Path(directory)
-    arrays = []
-    for name in ("Mean.npy", "Std.npy"):
-        path = directory / name
-        if not path.is_file():
-            raise FileNotFoundError(f"feature statistics file missing: {path}")
-        a = np.load(path, allow_pickle=False)
-        if a.ndim != 1 or (dim is not None and a.shape[0] != dim):
-            want = f"({dim},)" if dim is not None else "(D,)"
-            raise ValueError(f"{path}: expected shape {want}, got {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{path}: contains non-finite values")
-        arrays.append(a.astype(np.float32))
-    mean, std = arrays
-    if mean.shape != std.shape:
-        raise ValueError(f"{directory}: Mean.npy {mean.shape} and Std.npy {std.shape} differ in shape")
-    if np.any(std <= 0):
-        raise ValueError(f"{directory / 'Std.npy'}: has {int(np.sum(std <= 0))} entries <= 0")
-    return mean, std
