@@ -62,12 +62,13 @@ def markdown(report: dict) -> str:
                    if fl else f"| {s['variant']} | {s['threads']} | {s['batch']} ({s['rows']}) | {s['past']} | "
                               f"{_ms(s['seconds'], 3)} | n/a | n/a | n/a | n/a |")
     out += ["", f"## End to end: {MOTION_FRAMES} frames from text to joints", "",
-            "| engine | variant | threads | cache | wall ms | real-time factor | first frame ms (stream) | "
-            "stream wall ms | peak RSS MB |", "|---|---|---|---|---|---|---|---|---|"]
+            "| engine | variant | threads | cache | wall ms | ms per token | real-time factor | first frame ms (stream) "
+            "| stream wall ms | peak RSS MB |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in summ["e2e"]:
         out.append(f"| {r['engine']} | {r['variant']} | {r['threads']} | {'KV' if r['kv_cache'] else 'recompute'} | "
-                   f"{_ms(r['wall'], 1)} | {r['rtf']:.1f}× | {_ms(r.get('stream_first_frame'), 1)} | "
-                   f"{_ms(r.get('stream_wall'), 1)} | {r['peak_rss_bytes'] / 1e6:.0f} |")
+                   f"{_ms(r['wall'], 1)} | {r['wall']['median'] * 1e3 / r['tokens']:.3f} | {r['rtf']:.1f}× | "
+                   f"{_ms(r.get('stream_first_frame'), 1)} | {_ms(r.get('stream_wall'), 1)} | "
+                   f"{r['peak_rss_bytes'] / 1e6:.0f} |")
     out += ["", "## Where one generation's time goes (one instrumented run, ms)", "",
             "| engine | variant | threads | cache | wall | text | step | sample | decode | joints | loop/other |",
             "|---|---|---|---|---|---|---|---|---|---|---|"]

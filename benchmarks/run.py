@@ -96,7 +96,7 @@ def plan(opts, rnd: int) -> list[tuple[str, str, list[str], int]]:
                 jobs.append((f"step {v} threads={th} batch={batch}", "step",
                              b + one + step_warm + ["--variant", v, "--batch", str(batch), "--iters", str(opts.iters)],
                              th))
-    for v in opts.variants:
+    for v in opts.e2e_variants:
         for th in opts.threads:
             jobs.append((f"e2e onnxruntime {v} threads={th}", "e2e", b + one + gen_opts + ["--variant", v], th))
     if opts.torch:
@@ -375,8 +375,11 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     manifest = read_manifest(opts.bundle)
-    # the step case drives the dynamic-cache step graph: fp32 and int8 (portable and ORT copies: mogo-export verify)
+    # the step case drives the dynamic-cache step graph: fp32 and int8 (portable and ORT copies: mogo-export verify);
+    # end to end also runs the fixed-capacity variants (their step writes the cache in place)
+    e2e = opts.variants or [v for v in manifest.variants if v in ("fp32", "int8", PORTABLE, INT8_FIXED)]
     opts.variants = opts.variants or [v for v in manifest.variants if v in ("fp32", "int8")]
+    opts.e2e_variants = e2e
     notes = []
     if opts.torch and not ((opts.checkpoints / "vq.pt").is_file() and (opts.checkpoints / "transformer.pt").is_file()):
         notes.append(f"torch cases skipped: no checkpoints at {opts.checkpoints}")

@@ -35,6 +35,11 @@ def as_real(name: str, value, must: str, lo: float = -math.inf, hi: float = math
     return x
 
 
+def check_fps(fps) -> float:
+    """Frames per second: a real number > 0."""
+    return as_real("fps", fps, "> 0 (frames per second)", math.ulp(0.0))
+
+
 def as_int(name: str, value, must: str, lo: int, hi: int | None = None) -> int:
     """`value` as an int in [lo, hi] (any integral scalar, numpy's included, never a bool), else ValueError."""
     if (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral)

@@ -1,4 +1,5 @@
 """The TCA caption index (mogo_export.export.caption_index): built on the tiny dataset, read back by the runtime."""
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -64,7 +65,7 @@ def test_a_bundle_with_the_index_aligns_prompts(tmp_path, data, encoder, tiny_bu
     shutil.copytree(tiny_bundle, bundle_dir)
     facts = build_caption_index(data, encoder, bundle_dir / "captions.npz")
     manifest = json.loads((bundle_dir / "manifest.json").read_text())
-    manifest["tca"] = tca_manifest_section(facts).to_dict()
+    manifest["tca"] = dataclasses.asdict(tca_manifest_section(facts))
     manifest["files"]["captions.npz"] = {"bytes": facts["bytes"], "sha256": sha256_file(bundle_dir / "captions.npz")}
     (bundle_dir / "manifest.json").write_text(json.dumps(manifest))
     assert set(manifest["tca"]) >= {"file", "count", "dtype", "encoder", "lexical_weight", "split_margin"}

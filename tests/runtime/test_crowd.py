@@ -101,6 +101,21 @@ def test_characters_with_seconds_leave_by_themselves(gen):
     assert frames[a] == gen.tokens_for(1.0) * gen.dims.downsample
 
 
+def test_a_recorded_character_gives_its_motion(gen):
+    """Character.motion(): the tokens, features and joints it made, those of a lone fixed-length run."""
+    crowd = Crowd(gen)
+    kept, unkept = crowd.add(PROMPTS[2], seed=4, seconds=3.0, record=True), crowd.add(PROMPTS[0], seed=5)
+    assert kept.motion().num_frames == 0 and kept.motion().tokens.shape == (0, gen.dims.num_levels)
+    while kept in crowd.characters:
+        crowd.tick()
+    motion, alone = kept.motion(), gen.generate(PROMPTS[2], seed=4, seconds=3.0)
+    assert np.array_equal(motion.tokens, alone.tokens) and motion.num_frames == alone.num_frames
+    streamed = np.stack([f.joints for f in gen.stream(PROMPTS[2], seed=4, seconds=3.0)])
+    assert np.array_equal(motion.joints, streamed) and motion.seed == 4 and motion.text == PROMPTS[2]
+    with pytest.raises(ValueError, match="record=True"):
+        unkept.motion()
+
+
 def test_variants_that_cannot_batch_are_refused(portable_toy_bundle):  # noqa: F811
     for variant in ("fp32", "int8", "int8_ort"):
         with pytest.raises(ValueError, match="fixed-capacity step graph"):

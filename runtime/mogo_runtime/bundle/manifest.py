@@ -14,9 +14,9 @@ from ..checks import Fields, kind
 from ..kinematics.features import FeatureLayout
 from ..kinematics.skeleton import SKELETONS, Skeleton
 from .sampling import SamplingConfig
-from .sections import (GRAPHS, PER_ROW_INT8, BundleError, CacheNames, GraphFile, GraphSpec, ModelDims, Normalization,
-                       OrtFormat, PortableSpec, StreamingSpec, TcaSpec, TextEncoderSpec, parse_files, parse_sampling,
-                       parse_variants)
+from .sections import (GRAPHS, NORMALIZATION, PER_ROW_INT8, BundleError, CacheNames, GraphFile, GraphSpec,
+                       ModelDims, Normalization, OrtFormat, PortableSpec, StreamingSpec, TcaSpec, TextEncoderSpec,
+                       parse_files, parse_sampling, parse_variants)
 
 SCHEMA = "mogo-bundle"
 # 2: cache-name templates; `normalization` always an object; text_encoder numbers stored as numbers.
@@ -92,9 +92,9 @@ class Manifest:
         return {
             "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "producer": self.producer or {},
             "model": self.model.to_dict(), "skeleton": self.skeleton.to_dict(),
-            "features": self.layout.to_dict(), "normalization": self.normalization.to_dict(),
+            "features": self.layout.to_dict(), "normalization": {"mode": NORMALIZATION, **asdict(self.normalization)},
             "text_encoder": asdict(self.text_encoder), "sampling_defaults": self.sampling_defaults.to_dict(),
-            "cache": asdict(self.cache), **({"tca": self.tca.to_dict()} if self.tca else {}),
+            "cache": asdict(self.cache), **({"tca": asdict(self.tca)} if self.tca else {}),
             **({"streaming": asdict(self.streaming)} if self.streaming else {}),
             "graphs": {g: asdict(s) for g, s in self.graphs.items()},          # tuples are written as lists
             **({"portable": asdict(self.portable)} if self.portable else {}),

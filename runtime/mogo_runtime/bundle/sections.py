@@ -103,14 +103,12 @@ class GraphSpec:
 
     @classmethod
     def parse(cls, f: Fields) -> "GraphSpec":
-        io = {}
-        for kind_ in ("inputs", "outputs"):
-            specs = [TensorSpec.parse(Fields(d, f.where, f"{f.path}.{kind_}[{i}]", f.error))
-                     for i, d in enumerate(f.list(kind_))]
+        io = {kind_: tuple(TensorSpec.parse(Fields(d, f.where, f"{f.path}.{kind_}[{i}]", f.error))
+                           for i, d in enumerate(f.list(kind_))) for kind_ in ("inputs", "outputs")}
+        for kind_, specs in io.items():
             names = [s.name for s in specs]
             if not specs or len(set(names)) != len(names):
                 f.fail(kind_, f"expected a non-empty list of distinct names, got {names}")
-            io[kind_] = tuple(specs)
         return cls(**io)
 
 
@@ -192,9 +190,6 @@ class TextEncoderSpec:
 class Normalization:                 # mode NORMALIZATION: the decoder applies them itself; listed for reference
     mean: tuple[float, ...]          # (feature_dim,)
     std: tuple[float, ...]
-
-    def to_dict(self) -> dict:
-        return {"mode": NORMALIZATION, **asdict(self)}
 
     @classmethod
     def parse(cls, f: Fields, model: ModelDims) -> "Normalization":
@@ -291,9 +286,6 @@ class TcaSpec:
     split: str = "train"             # the data split the captions come from
     lexical_weight: float = 0.05     # how much direction words count in the aligner's re-ranking
     split_margin: float = 0.02       # how much better two clauses must match than the whole to split a prompt
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
     @classmethod
     def parse(cls, f: Fields, model: ModelDims) -> "TcaSpec":

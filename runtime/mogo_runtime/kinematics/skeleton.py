@@ -151,16 +151,6 @@ KIT = Skeleton(
 SKELETONS = {s.name: s for s in (HUMANML3D, KIT)}
 
 
-def check_fps(fps) -> float:
-    try:
-        value = float(fps)
-    except (TypeError, ValueError):
-        value = float("nan")
-    if not (np.isfinite(value) and value > 0):
-        raise ValueError(f"fps must be a positive number, got {fps!r}")
-    return value
-
-
 def get_skeleton(name: str) -> Skeleton:
     try:
         return SKELETONS[name]

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..kinematics.skeleton import HUMANML3D, Skeleton, check_fps, children_of, depth_first
+from ..checks import check_fps
+from ..kinematics.skeleton import HUMANML3D, Skeleton, children_of, depth_first
 from .files import write_atomic
 from .ik import axis_angle, local_rotations, rest_offsets
 

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from ..kinematics.skeleton import HUMANML3D, Skeleton, check_fps, rest_positions
+from ..checks import check_fps
+from ..kinematics.skeleton import HUMANML3D, Skeleton, rest_positions
 from .files import OutputError, staged_output, write_atomic
 
 # Palette indices and colours.

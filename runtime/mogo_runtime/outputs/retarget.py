@@ -23,7 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..kinematics.quaternion import unit
-from ..kinematics.skeleton import HUMANML3D, Skeleton, check_fps, is_ancestor, rest_positions
+from ..checks import check_fps
+from ..kinematics.skeleton import HUMANML3D, Skeleton, is_ancestor, rest_positions
 from .bvh import rotations_to_bvh_text
 from .ik import axis_angle, kabsch, local_rotations, min_rotation, rest_offsets
 from .rig import FOOT_SOURCES, Rig, load_rig
