@@ -10,7 +10,7 @@
 // and the timings.
 
 import { Bundle, urlLoader } from '../js/src/index.js';
-import { jointsToBvhText } from './bvh.js';
+import { jointsToBvhText } from '../js/src/outputs/bvh.js';
 import { SkeletonViewer } from './viewer.js';
 
 const JSON_DECIMALS = 4;   // as runtime/mogo_runtime/motion.py writes .json files: 0.1 mm
@@ -36,6 +36,7 @@ const page = {
   variant: null,
   endless: false,
   busy: null,          // 'loading' | 'generating' | 'streaming' | null
+  mode: 'clip',        // the last of Generate clip / Stream pressed: what Enter does when no stream runs
   motion: null,        // what is on screen: {kind, texts, seed, variant, fps, tokens, levels, switches, frames[]}
   runId: 0,
   shows: 0,            // motions put on screen so far
@@ -109,7 +110,7 @@ async function probeVariants(variants) {
   const notOffered = [];
   const note = (extra) => { $('variant-note').textContent = [extra, notOffered.length ? `not offered: ${notOffered.join('; ')}` : ''].filter(Boolean).join(' '); };
   for (const v of variants) {
-    note(`checking whether this runtime runs the ${v} variant...`);
+    note(`checking whether this runtime runs the ${v} variant${page.stream ? ' (once the stream is stopped)' : ''}...`);
     try {
       await ask({ type: 'probe', bundleUrl, variant: v, threads });
       $('variant').append(new Option(v, v));
@@ -165,6 +166,7 @@ function readInputs() {
 
 async function generateClip() {
   const { text, seed, seconds } = readInputs();
+  page.mode = 'clip';
   stopStream();
   setBusy('generating');
   status(`generating "${text}" (seed ${seed})...`);
@@ -187,6 +189,7 @@ async function generateClip() {
 
 function startStream() {
   const { text, seed } = readInputs();
+  page.mode = 'stream';
   stopStream();
   const id = ++page.runId;
   const fps = page.manifest.model.fps;
@@ -209,8 +212,13 @@ function setPrompt() {
 function stopStream() {
   if (!page.stream) return;
   worker.postMessage({ type: 'stop', id: page.stream.id });
+  streamOver();
+}
+
+/** The stream is not running any more (stopped, ended or failed): what was received plays as a clip. */
+function streamOver() {
   page.stream = null;
-  viewer.player.live = false;   // what was received plays as a clip
+  viewer.player.live = false;
   if (page.busy === 'streaming') setBusy(null);
 }
 
@@ -272,20 +280,20 @@ worker.onmessage = ({ data: msg }) => {
       }
       break;
     case 'end':
-      if (page.stream?.id === msg.id) {
-        page.stream = null;
-        viewer.player.live = false;
-        setBusy(null);
-        status(`the stream ended after ${msg.frames} frames (the model ended the clip)`);
-      }
+      if (page.stream?.id !== msg.id) break;   // a stream the page stopped itself
+      streamOver();
+      if (msg.reason === 'ended') status(`the stream ended after ${msg.frames} frames (the model ended the clip)`);
+      else fail(new Error(`the stream stopped after ${msg.frames} frames without being asked to (worker: ${msg.reason})`));
       break;
     case 'error':
       waiting.delete(msg.id);
-      if (pending) pending.reject(new Error(msg.message));
-      else fail(new Error(msg.message));
-      if (page.stream?.id === msg.id) {
-        page.stream = null;
-        setBusy(null);
+      if (pending) {
+        pending.reject(new Error(msg.message));
+      } else if (page.stream?.id === msg.id) {   // the running stream failed: it is over, and not as the model's end
+        streamOver();
+        fail(new Error(`the stream failed ${msg.frames ? `after ${msg.frames} frames` : 'before its first frame'}: ${msg.message}`));
+      } else {
+        fail(new Error(msg.message));
       }
       break;
     default:
@@ -443,11 +451,13 @@ $('play').onclick = () => {
 };
 $('download-bvh').onclick = guard(() => download(bvhText(), `${fileStem()}.bvh`, 'text/plain'));
 $('download-json').onclick = guard(() => download(jsonText(), `${fileStem()}.json`, 'application/json'));
+// Enter: the running stream's new prompt (endless bundles); with none running, what the last button pressed did, so
+// a stream that ended or failed is not silently followed by a clip
 $('prompt').addEventListener('keydown', (e) => {
   if (e.key !== 'Enter') return;
   e.preventDefault();
   if (page.busy === 'streaming' && page.endless) guard(setPrompt)();
-  else if (!page.busy) guard(generateClip)();
+  else if (!page.busy) guard(page.mode === 'stream' ? startStream : generateClip)();
 });
 
 if (params.get('prompt')) $('prompt').value = params.get('prompt');

@@ -11,7 +11,11 @@
 //   worker -> page  {type: 'status', text} {type: 'loaded', id, ...} {type: 'probed', id, variant}
 //                   {type: 'progress', id, step, limit}
 //                   {type: 'clip', id, ...} {type: 'frames', id, start, joints, ...} {type: 'switched', id, ...}
-//                   {type: 'end', id} {type: 'error', id, message}
+//                   {type: 'end', id, frames, busyMs, reason} {type: 'error', id, message, frames?}
+//
+// A stream answers exactly once when it is over: `end` with reason 'ended' (the model ended the motion) or
+// 'stopped' (a stop, or a command that needs the sessions), or `error` with the exception's message; never `end`
+// for an exception, so the page cannot show a failure as the model's choice.
 //
 // A prompt switch is applied between two frames of the stream, never while a step is in flight: the stream's
 // setPrompt re-arms the context when its text embedding arrives, and a step already running would overwrite that.
@@ -20,10 +24,16 @@ import * as ort from './node_modules/onnxruntime-web/dist/ort.wasm.min.mjs';
 import { MotionGenerator, urlLoader } from '../js/src/index.js';
 
 let gen = null;
-let run = null;   // the stream being produced: {id, stream, played, ahead, queued: [texts], stopped, wake}
+// Streams by id from their command's arrival until they are over, so a stop (or a prompt) sent while the command
+// waits its turn, or while its prompt is encoded, is not lost: {id, stream, played, ahead, queued: [texts], stopped, wake}
+const streams = new Map();
 
-// Commands that use the sessions run one after another (a new one first stops the stream); the small ones act at
-// once, between two frames of the stream.
+// Commands that use the sessions run one after another; the small ones act at once, between two frames of the
+// stream. What the user asks for (load, generate, stream) first stops the stream. A probe does not: the page
+// probes variants in the background after loading, while the user may already be streaming, and stopping the
+// stream there ended every stream started in those seconds after its first frame. A probe waits its turn
+// instead (an endless stream holds the sessions until it is stopped).
+const TAKES_OVER = new Set(['load', 'generate', 'stream']);
 let chain = Promise.resolve();
 
 self.onmessage = (event) => {
@@ -32,7 +42,10 @@ self.onmessage = (event) => {
   if (Object.hasOwn(NOW, msg.type)) {
     NOW[msg.type](msg);
   } else if (Object.hasOwn(QUEUED, msg.type)) {
-    stopStream();
+    if (TAKES_OVER.has(msg.type)) for (const me of streams.values()) stop(me);
+    if (msg.type === 'stream') {
+      streams.set(msg.id, { id: msg.id, stream: null, played: -1, ahead: msg.ahead, queued: [], stopped: false, wake: null });
+    }
     chain = chain.then(() => QUEUED[msg.type](msg)).catch(fail);
   } else {
     fail(new Error(`unknown command ${msg.type}`));
@@ -71,30 +84,43 @@ const QUEUED = {
       tokens, levels: motion.tokens.dims[1], joints }, [joints.buffer, tokens.buffer]);
   },
 
-  async stream({ id, text, seed, ahead }) {
-    const stream = await gen.stream(text, { seed });
-    run = { id, stream, played: -1, ahead, queued: [], stopped: false, wake: null };
-    await produce(run);
+  async stream({ id, text, seed }) {
+    const me = streams.get(id);
+    try {
+      if (!me.stopped) me.stream = await gen.stream(text, { seed });
+    } catch (e) {
+      streams.delete(id);
+      throw e;
+    }
+    if (me.stopped) {
+      streams.delete(id);
+      self.postMessage({ type: 'end', id, frames: 0, busyMs: 0, reason: 'stopped' });
+      return;
+    }
+    await produce(me);
   },
 };
 
 const NOW = {
   played({ id, frame }) {
-    if (run && run.id === id) {
-      run.played = Math.max(run.played, frame);
-      wake(run);
+    const me = streams.get(id);
+    if (me) {
+      me.played = Math.max(me.played, frame);
+      wake(me);
     }
   },
 
   setPrompt({ id, text }) {
-    if (run && run.id === id) {
-      run.queued.push(text);
-      wake(run);
+    const me = streams.get(id);
+    if (me) {
+      me.queued.push(text);
+      wake(me);
     }
   },
 
   stop({ id }) {
-    if (run && run.id === id) stopStream();
+    const me = streams.get(id);
+    if (me) stop(me);
   },
 };
 
@@ -112,6 +138,7 @@ async function produce(me) {
       tokens: me.stream.tokens, busyMs, fps }, [joints.buffer]);
     batch.length = 0;
   };
+  let reason = 'stopped', failure = null;   // failure: {error}, whatever was thrown
   try {
     while (!me.stopped) {
       while (me.queued.length) {   // the generator is suspended between two frames here: no step in flight
@@ -128,7 +155,10 @@ async function produce(me) {
       const t0 = performance.now();
       const { value, done } = await it.next();
       busyMs += performance.now() - t0;
-      if (done) break;
+      if (done) {
+        reason = 'ended';
+        break;
+      }
       batch.push(value.joints);
       produced += 1;
       // hand the frames over at each chunk's end (the next call samples tokens), and let messages in
@@ -137,19 +167,23 @@ async function produce(me) {
         await yieldToEvents();
       }
     }
-    flush();
-  } finally {
-    await it.return?.();
-    if (run === me) run = null;
-    self.postMessage({ type: 'end', id: me.id, frames: produced, busyMs });
+  } catch (error) {
+    failure = { error };
   }
+  flush();   // the frames decoded before a failure are still motion
+  streams.delete(me.id);
+  try {
+    await it.return?.();
+  } catch (error) {
+    failure ??= { error };
+  }
+  self.postMessage(failure ? { type: 'error', id: me.id, message: describe(failure.error), frames: produced }
+    : { type: 'end', id: me.id, frames: produced, busyMs, reason });
 }
 
-function stopStream() {
-  if (!run) return;
-  run.stopped = true;
-  wake(run);
-  run = null;
+function stop(me) {
+  me.stopped = true;
+  wake(me);
 }
 
 function wake(me) {

@@ -1,12 +1,12 @@
-// web/bvh.js against runtime/mogo_runtime/bvh.py on the same joints: a real HumanML3D clip and a noisy copy.
+// js/src/outputs/bvh.js (the browser's BVH writer) against runtime/mogo_runtime/outputs/bvh.py on the same joints: a real HumanML3D clip and a noisy copy.
 
 import assert from 'node:assert/strict';
 import { execFileSync } from 'node:child_process';
 import { test } from 'node:test';
 import { fileURLToPath } from 'node:url';
 
-import { SKELETONS } from '../../js/src/skeleton.js';
-import { fixed, jointsToBvhText } from '../bvh.js';
+import { SKELETONS } from '../../js/src/kinematics/skeleton.js';
+import { fixed, jointsToBvhText } from '../../js/src/outputs/bvh.js';
 import { compareBvh } from './compare.mjs';
 
 const PY = process.env.PYTHON ?? fileURLToPath(new URL('../../.venv/bin/python', import.meta.url));

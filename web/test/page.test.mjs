@@ -3,11 +3,15 @@
 //     runtime gives for the same prompts, seeds and sampling (web/test/reference.py);
 //   - a stream whose prompt is changed mid-stream through the page gives the motion of Python's timeline that
 //     switches at the same token; the screenshots show the skeleton (pixels of its colours) and it moves;
-//   - the page's BVH and JSON downloads equal what runtime/mogo_runtime writes for the same joints.
+//   - the page's BVH and JSON downloads equal what runtime/mogo_runtime writes for the same joints;
+//   - every bundle (toy, toy-variants, MOGO_WEB_BUNDLES) streams as a person streams it: Stream pressed as soon as it
+//     is enabled, ENDLESS.seconds of motion shown (the page's clock run ahead), a new prompt with Enter, the status
+//     never saying the stream ended; a stream whose worker throws is shown as an error, and only a stream the model
+//     ended (toy-clips, no endless streams) says so.
 // Run by web/test/run.sh (make test-web), which builds the bundles and the reference; prints `web:` lines.
 
 import assert from 'node:assert/strict';
-import { execFileSync, spawn } from 'node:child_process';
+import { execFileSync } from 'node:child_process';
 import { mkdirSync, readFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { after, before, test } from 'node:test';
@@ -15,6 +19,7 @@ import { fileURLToPath } from 'node:url';
 
 import { chromium } from 'playwright-core';
 
+import { downloaded, rows, serve, sharedPrefix, skeletonPixels } from './browser.mjs';
 import { compareBvh } from './compare.mjs';
 
 const ROOT = fileURLToPath(new URL('../../', import.meta.url));
@@ -24,6 +29,8 @@ const OUT = process.env.MOGO_WEB_OUT ?? join(ROOT, 'outputs/web-test');
 const CHROMIUM = process.env.CHROMIUM ?? 'chromium';
 const JOINT_TOLERANCE = 1e-4;   // metres: onnxruntime-web's wasm kernels against onnxruntime's native ones
 const STREAM = { first: 'a person walks forward', then: 'a person jumps twice', seed: 5 };
+const ENDLESS = { first: 'a person walks forward', then: 'a person turns left', seed: 3, seconds: 20, switchAt: 10 };
+const WORK = process.env.MOGO_WEB_WORK;
 
 if (!REFERENCE) throw new Error('MOGO_WEB_REFERENCE is not set: run web/test/run.sh (make test-web)');
 const reference = JSON.parse(readFileSync(REFERENCE, 'utf8'));
@@ -33,8 +40,10 @@ let server, browser;
 
 before(async () => {
   const mounts = Object.entries(reference.bundles).flatMap(([name, b]) => ['--mount', `/test-bundles/${name}=${b.path}`]);
-  mounts.push('--mount', `/test-bundles/toy-variants=${join(process.env.MOGO_WEB_WORK, 'bundles/toy-variants')}`);
-  server = await serve(mounts);
+  for (const made of ['toy-variants', 'toy-failing', 'toy-clips']) {
+    mounts.push('--mount', `/test-bundles/${made}=${join(WORK, 'bundles', made)}`);
+  }
+  server = await serve(PY, ROOT, mounts);
   browser = await chromium.launch({
     executablePath: CHROMIUM,
     // software WebGL (SwiftShader): a headless machine has no GPU
@@ -102,12 +111,12 @@ test('variants of a make the page does not know are offered only where they run 
   const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy-variants`);
   assert.equal(await page.evaluate(() => window.mogoPage.ready), true, `the page did not load: ${problems.join('; ')}`);
   const state = await page.evaluate(() => window.mogoPage.state);
-  assert.deepEqual(state.variants, ['fp32', 'int8', 'portable']);
+  assert.deepEqual(state.variants, ['fp32', 'int8', 'copy']);
   const note = await page.textContent('#variant-note');
   assert.match(note, /^not offered: broken \(.*broken\.onnx.*\)$/);
-  await selectVariant(page, 'portable');
+  await selectVariant(page, 'copy');
   const { motion } = await generate(page, reference.clips[0]);
-  assert.deepEqual(rows(motion.tokens, motion.levels), reference.bundles.toy.tokens.fp32[0], 'portable = the fp32 graphs');
+  assert.deepEqual(rows(motion.tokens, motion.levels), reference.bundles.toy.tokens.fp32[0], 'copy = the fp32 graphs');
   console.log(`web: toy-variants: offered ${state.variants.join(', ')}; ${note}`);
   assert.deepEqual(problems.filter((p) => !p.includes('broken.onnx')), [], 'errors in the page');
   await page.close();
@@ -187,28 +196,185 @@ async function checkFiles(page, what) {
     + `${r.maxDiff.toExponential(1)}), JSON frames equal Motion.save's (${motion.numFrames} frames)`);
 }
 
-// ---- helpers ----------------------------------------------------------------------------------------------
-
-/** web/serve.py on a free port; resolves once it prints its URL. */
-function serve(mounts) {
-  return new Promise((resolve, reject) => {
-    const proc = spawn(PY, [join(ROOT, 'web/serve.py'), '--port', '0', '--page', '', ...mounts], { stdio: ['ignore', 'pipe', 'inherit'] });
-    let out = '';
-    proc.stdout.on('data', (chunk) => {
-      out += chunk;
-      const m = out.match(/(http:\/\/\S+)/);
-      if (m) resolve({ process: proc, url: m[1].endsWith('/') ? m[1] : `${m[1]}/` });
+// A person opens the page and presses Stream as soon as it is enabled, while the page may still be checking the
+// bundle's other variants in the background (streams started then used to end after one frame, shown as the model's
+// end). The stream must run until stopped, follow a prompt typed with Enter, and never say it is over. The page's
+// clock runs ahead whenever decoded frames wait to be shown, so the motion takes its decoding time, not its length.
+// On a bundle of clips (no endless streams) the stream must end as the model ends it, and say so.
+for (const name of [...Object.keys(reference.bundles), 'toy-variants']) {
+  test(`the ${name} bundle streams through the page's controls: ${ENDLESS.seconds} s of motion, a new prompt with Enter`,
+    { timeout: 600_000 }, async () => {
+      const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/${name}`, { clock: true });
+      const run = await startStreaming(page, name, ENDLESS, { early: true });
+      if (bundleManifest(name).streaming) await streamEndlessly(page, run);
+      else await checkModelEnds(page, run);
+      // the variants not checked yet when Stream was pressed were checked once the stream stopped
+      assert.equal(await page.evaluate(() => window.mogoPage.ready), true, `${name}: the page did not finish loading`);
+      assert.deepEqual(problems.filter((p) => !p.includes('broken.onnx')), [], `${name}: errors in the page`);
+      await page.close();
     });
-    proc.on('exit', (code) => reject(new Error(`web/serve.py exited with ${code}: ${out}`)));
-  });
 }
 
-async function open(url) {
+/** ENDLESS.seconds of motion shown, a new prompt typed with Enter at ENDLESS.switchAt, then Stop. */
+async function streamEndlessly(page, run) {
+  const { name } = run, fps = bundleManifest(name).model.fps;
+  const streaming = (s) => {
+    assert.deepEqual(s.errors, [], `${name}: errors at frame ${s.shown}`);
+    assert.equal(s.busy, 'streaming', `${name}: the stream is not running at frame ${s.shown} of ${s.frames}: "${s.status}"`);
+  };
+  const before = await play(page, run, (s) => s.shown >= ENDLESS.switchAt * fps, streaming);
+  await page.fill('#prompt', ENDLESS.then);
+  await page.press('#prompt', 'Enter');
+  const last = await play(page, run, (s) => s.shown >= ENDLESS.seconds * fps, streaming);
+  const wallS = (Date.now() - run.t0) / 1000;
+  const { switches, variant } = await page.evaluate(() => window.mogoPage.motion());
+  const statuses = await page.evaluate(() => window.statusLog);
+  assert.equal(switches.length, 1, `${name}: the prompt switch was not applied`);
+  assert.equal(switches[0].text, ENDLESS.then);
+  assert.ok(switches[0].frame >= before.shown, `${name}: switched at frame ${switches[0].frame}, before Enter`);
+  assert.ok(statuses.some((t) => t.startsWith(`now following "${ENDLESS.then}"`)), `${name}: no acknowledgement in ${statuses.join(' / ')}`);
+  assert.deepEqual(statuses.filter((t) => /ended|stopped|failed/.test(t)), [], `${name}: the status said the stream was over`);
+  await page.click('#stop');
+  await play(page, run, (s) => s.busy === null);
+  const { tokens, generatedFps } = last.stats.stream;
+  console.log(`web: ${name}/${variant} endless stream through the page's controls (Stream pressed `
+    + `${run.note ? `while the page said ${JSON.stringify(run.note)}` : 'once the page loaded (no variant to check)'}): `
+    + `${(last.shown / fps).toFixed(1)} s of motion shown (${last.frames} frames decoded, ${tokens} tokens) in `
+    + `${wallS.toFixed(1)} s wall time, first frame ${run.firstAt - run.t0} ms after Stream; Enter at frame ${before.shown} `
+    + `switched at token ${switches[0].token} (frame ${switches[0].frame}); the worker decoded ${generatedFps.toFixed(0)} `
+    + 'frames/s; the status never said the stream was over');
+}
+
+test('a stream whose worker throws is shown as an error with its message, not as an end', { timeout: 120_000 }, async () => {
+  // toy-failing's decoder gives NaN for more than one token: the first token's frames come, then the worker throws
+  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy-failing`, { clock: true });
+  const failure = /^the stream failed after 4 frames: .*decoder\.onnx: the decoder graph produced NaN/;
+  const run = await startStreaming(page, 'toy-failing', ENDLESS, { limitMs: 60_000 });
+  let s = await play(page, run, (st) => st.busy !== 'streaming');
+  assert.equal(s.errors.length, 1, `errors: ${s.errors.join('; ')}`);
+  assert.match(s.errors[0], failure);
+  assert.equal(s.status, s.errors[0], 'the status line shows the failure');
+  assert.equal(await page.getAttribute('#status', 'class'), 'error');
+  assert.equal(s.busy, null);
+  assert.equal(s.frames, 4, 'the frames decoded before the failure are kept');
+  for (const button of ['#stop', '#set-prompt']) assert.ok(await page.isDisabled(button), `${button} is enabled after the failure`);
+  const statuses = await page.evaluate(() => window.statusLog);
+  assert.deepEqual(statuses.filter((t) => /ended/.test(t)), [], 'the status said the stream ended');
+
+  // Enter after a stream: a stream again (here failing again), not a clip
+  await page.fill('#prompt', ENDLESS.then);
+  await page.press('#prompt', 'Enter');
+  const shows = s.shows;
+  s = await play(page, run, (st) => st.shows === shows + 1 && st.busy === null);
+  assert.equal((await page.evaluate(() => window.mogoPage.motion())).kind, 'stream', 'Enter after a stream made a clip');
+  assert.equal(s.errors.length, 2);
+  assert.match(s.errors[1], failure);
+
+  await page.fill('#seconds', '2');   // 10 tokens, decoded at once: a clip fails, and says so
+  await page.click('#generate');
+  s = await play(page, run, (st) => st.busy === null && (st.errors.length > 2 || st.shows > shows + 1));
+  assert.equal(s.errors.length, 3, 'Generate clip did not fail');
+  assert.match(s.errors[2], /^(BundleError: )?decoder\.onnx: the decoder graph produced NaN/);
+  assert.ok(problems.every((p) => p.includes('produced NaN')), `other errors in the page: ${problems.join('; ')}`);
+  console.log(`web: toy-failing: a stream that throws after ${s.frames} frames: "${s.errors[0]}" in the status line (error), `
+    + 'the stream not running; Enter streams again; Generate clip fails with the same message');
+  await page.close();
+});
+
+test('a stream on a bundle without endless streams ends when the model ends it, and says so', { timeout: 120_000 }, async () => {
+  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy-clips`, { clock: true });
+  await checkModelEnds(page, await startStreaming(page, 'toy-clips', ENDLESS, { limitMs: 60_000 }));
+  assert.deepEqual(problems, [], 'errors in the page');
+  await page.close();
+});
+
+test('Stop pressed while a stream waits for a variant check: nothing streams, the checks finish', { timeout: 120_000 }, async () => {
+  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy-variants`, { clock: true });
+  const run = await startStreaming(page, 'toy-variants', ENDLESS, { early: true, stop: true });
+  assert.match(run.note, /^checking/, 'Stream was pressed while the page checked a variant');
+  const ready = await page.evaluate(() => Promise.race([window.mogoPage.ready,
+    new Promise((resolve) => { setTimeout(() => resolve('still checking after 60 s'), 60_000); })]));
+  assert.equal(ready, true, 'the variant checks did not finish: a stream stopped before it started still holds the worker');
+  await page.waitForTimeout(500);   // a stream that started anyway would show frames by now
+  const s = await page.evaluate(() => window.mogoPage.state);
+  assert.deepEqual([s.busy, s.frames, s.errors], [null, 0, []]);
+  assert.deepEqual(s.variants, ['fp32', 'int8', 'copy']);
+  assert.deepEqual(problems.filter((p) => !p.includes('broken.onnx')), [], 'errors in the page');
+  await page.close();
+});
+
+/**
+ * Type the prompt and seed, press Stream; every text of the status line from then on goes to window.statusLog.
+ * `early`: press it as soon as a person can, in the page itself (a variant check on the toy bundles lasts a fraction
+ * of a second, too short to catch from outside): while the page says it checks a variant of unknown make, else
+ * once loaded. Otherwise once loaded. `stop`: press Stop right after Stream, in the same task.
+ */
+async function startStreaming(page, name, { first, seed }, { early = false, stop = false, limitMs = 300_000 } = {}) {
+  await page.fill('#prompt', first);
+  await page.fill('#seed', String(seed));
+  if (!early) assert.equal(await page.evaluate(() => window.mogoPage.ready), true, `${name}: the page did not load`);
+  const t0 = Date.now();
+  const note = await page.evaluate(([atCheck, thenStop]) => new Promise((resolve) => {
+    const button = document.getElementById('stream'), note = document.getElementById('variant-note');
+    const status = document.getElementById('status');
+    let pressed = false;
+    const press = () => {
+      if (pressed) return;
+      pressed = true;
+      observer.disconnect();
+      window.statusLog = [];
+      new MutationObserver(() => window.statusLog.push(status.textContent))
+        .observe(status, { childList: true, characterData: true, subtree: true });
+      button.click();
+      if (thenStop) document.getElementById('stop').click();
+      resolve(note.textContent);
+    };
+    const check = () => { if (atCheck && !button.disabled && note.textContent.startsWith('checking')) press(); };
+    const observer = new MutationObserver(check);
+    observer.observe(document.body, { subtree: true, childList: true, characterData: true, attributes: true });
+    check();
+    window.mogoPage.ready.then(press);
+  }), [early, stop]);
+  return { name, note, t0, firstAt: null, deadline: t0 + limitMs };
+}
+
+/** A stream on a bundle of clips: over when the model ends the motion, said as such, nothing shown as an error. */
+async function checkModelEnds(page, run) {
+  const s = await play(page, run, (st) => st.busy === null);
+  assert.deepEqual(s.errors, [], `${run.name}: errors`);
+  assert.match(s.status, new RegExp(`^the stream ended after ${s.frames} frames \\(the model ended the clip\\)$`));
+  assert.ok(s.frames > 0);
+  console.log(`web: ${run.name} (no endless streams): the stream ended after ${s.frames} frames and the page says the model ended it`);
+}
+
+/** Poll the page until `until(state)`, running its clock one animation frame ahead whenever frames wait to be shown. */
+async function play(page, run, until, check = () => {}) {
+  for (;;) {
+    const s = await page.evaluate(() => ({ ...window.mogoPage.state, status: document.getElementById('status').textContent }));
+    if (s.frames > 0) run.firstAt ??= Date.now();
+    check(s);
+    if (until(s)) return s;
+    assert.ok(Date.now() < run.deadline, `${run.name}: timed out at frame ${s.shown} of ${s.frames}: "${s.status}"`);
+    if (s.frames - 1 > s.shown) await page.clock.fastForward(250);   // the player moves at most 0.25 s per frame drawn
+    else await new Promise((resolve) => { setTimeout(resolve, 20); });   // the worker is decoding
+  }
+}
+
+function bundleManifest(name) {
+  const folder = reference.bundles[name]?.path ?? join(WORK, 'bundles', name);
+  return JSON.parse(readFileSync(join(folder, 'manifest.json'), 'utf8'));
+}
+
+// ---- helpers ----------------------------------------------------------------------------------------------
+
+/** A new page at `url`; with `clock`, the page's timers and animation frames on a clock the test can run ahead. */
+async function open(url, { clock = false } = {}) {
   const page = await browser.newPage({ viewport: { width: 1100, height: 700 }, acceptDownloads: true });
   const problems = [];
   page.on('pageerror', (e) => problems.push(`page error: ${e.message}`));
   page.on('console', (m) => { if (m.type() === 'error') problems.push(`console: ${m.text()}`); });
   page.on('crash', () => problems.push('the page crashed'));
+  if (clock) await page.clock.install();
   await page.goto(url);
   return { page, problems };
 }
@@ -241,69 +407,6 @@ async function waitState(page, predicate, arg) {
   const state = await handle.jsonValue();
   assert.ok(state.errors.length === errors, `the page reports: ${state.errors.slice(errors).join('; ')}`);
   return state;
-}
-
-async function downloaded(page, button) {
-  const [download] = await Promise.all([page.waitForEvent('download'), page.click(button)]);
-  const path = await download.path();
-  return readFileSync(path, 'utf8');
-}
-
-/**
- * Pixels of the skeleton's colours in PNG screenshots, decoded by the browser: the only saturated colours on
- * screen are its left (blue), right (orange) and centre (yellow) parts. `moved[i]`: pixels that are skeleton in
- * one of shots i, i + 1 and not in the other.
- */
-async function skeletonPixels(page, pngs) {
-  return page.evaluate(async (list) => {
-    const masks = [], shots = [];
-    let width = 0, height = 0;
-    for (const b64 of list) {
-      const img = new Image();
-      img.src = `data:image/png;base64,${b64}`;
-      await img.decode();
-      ({ width, height } = img);
-      const canvas = new OffscreenCanvas(width, height);
-      const ctx = canvas.getContext('2d');
-      ctx.drawImage(img, 0, 0);
-      const d = ctx.getImageData(0, 0, width, height).data;
-      const mask = new Uint8Array(width * height);
-      const count = { skeleton: 0, left: 0, right: 0, centre: 0 };
-      for (let i = 0; i < mask.length; i++) {
-        const r = d[4 * i] / 255, g = d[4 * i + 1] / 255, b = d[4 * i + 2] / 255;
-        const max = Math.max(r, g, b), min = Math.min(r, g, b);
-        if (max < 0.3 || (max - min) / max < 0.45) continue;   // dark or grey: background, grid, panel
-        let hue = max === r ? ((g - b) / (max - min)) * 60 : max === g ? (2 + (b - r) / (max - min)) * 60 : (4 + (r - g) / (max - min)) * 60;
-        if (hue < 0) hue += 360;
-        const side = hue >= 190 && hue <= 225 ? 'left' : hue >= 12 && hue < 36 ? 'right' : hue >= 36 && hue <= 60 ? 'centre' : null;
-        if (!side) continue;
-        mask[i] = 1;
-        count.skeleton += 1;
-        count[side] += 1;
-      }
-      masks.push(mask);
-      shots.push(count);
-    }
-    const moved = [];
-    for (let k = 1; k < masks.length; k++) {
-      let n = 0;
-      for (let i = 0; i < masks[k].length; i++) n += masks[k][i] !== masks[k - 1][i];
-      moved.push(n);
-    }
-    return { width, height, shots, moved };
-  }, pngs.map((b) => b.toString('base64')));
-}
-
-/** How many leading rows two token lists share. */
-function sharedPrefix(a, b) {
-  let n = 0;
-  while (n < a.length && n < b.length && a[n].join() === b[n].join()) n += 1;
-  return n;
-}
-
-/** Flat tokens -> rows of `levels`. */
-function rows(flat, levels) {
-  return Array.from({ length: flat.length / levels }, (_, t) => flat.slice(t * levels, (t + 1) * levels));
 }
 
 // The golden tokens (tests/golden/toy.json) in the browser: the JavaScript runtime on onnxruntime-web (wasm) in

@@ -8,7 +8,7 @@
         for joints {"joints": flat (T, J, 3), "frames": T}: runtime/mogo_runtime/bvh.py's text and the frames of
         Motion.save's .json (rounded as it rounds), as JSON {"bvh": ..., "json_frames": ...} on stdout
     python web/test/reference.py fixture
-        bvh.py's text for the real HumanML3D clip in ../shared/fixtures (cm, 20 fps) and for a noisy copy of it
+        outputs/bvh.py's text for the real HumanML3D test clip (tests/conftest.py: FIXTURES) (cm, 20 fps) and for a noisy copy of it
         (metres, 30 fps: every bone's direction jitters, some frames near the twist and gimbal cases), as JSON
 """
 from __future__ import annotations
