@@ -1,14 +1,11 @@
 // Time per token of an endless stream's token loop (step graph + sampling), as scripts/bench.py does for Python.
 //   node js/scripts/bench.mjs BUNDLE [variant] [steps]   -> one JSON line
-import { MotionGenerator } from '../src/index.js';
+import { EndlessLoop, MotionGenerator } from '../src/index.js';
 
 const [dir, variant = 'fp32', steps = '300'] = process.argv.slice(2);
 const gen = await MotionGenerator.load(dir, { variant, threads: 1 });
 const emb = await gen.backend.encodeText(['a person walks forward']);
-const { GenerationTask } = await import('../src/task.js');
-const task = new GenerationTask({ backend: gen.backend, sampling: gen.samplingDefaults, maxTokens: gen.maxTokens,
-  streaming: gen.bundle.manifest.streaming });
-const loop = task.loop(emb, [1n]);
+const loop = new EndlessLoop(gen.backend, emb, gen.samplingDefaults, [1n], gen.bundle.manifest.streaming);
 for (let i = 0; i < 20; i++) await loop.step();   // warm up
 const times = [];
 for (let i = 0; i < Number(steps); i++) {

@@ -1,5 +1,5 @@
 // The graphs of one bundle variant on onnxruntime: the backend the token loop drives
-// (runtime/mogo_runtime/engine.py: OrtBackend + RowByRow).
+// (runtime/mogo_runtime/engine.py: OrtBackend and FixedCacheBackend).
 //
 // Arrays are flat typed arrays in row-major order with their shape given beside them. The KV cache is the
 // list of `present.*` tensors a step returns, fed back as the next step's `past_key_values.*` as they are.
@@ -7,9 +7,10 @@
 // the range of the whole input tensor, so in a batch a row's numbers would depend on its neighbours
 // (docs/bundle.md, the generation loop, step 3). Their cache is then one list of tensors per row.
 
-import { BundleError, GRAPHS, PER_ROW_INT8, fixedCache, graphFile } from './manifest.js';
+import { createSession } from './bundle/io.js';
+import { fixedCache, rowByRow } from './bundle/manifest.js';
+import { BundleError, GRAPHS } from './bundle/sections.js';
 import { Tokenizer } from './tokenizer.js';
-import { createSession } from './io.js';
 
 /** A graph returned NaN or inf: its bundle is broken, whatever the input. */
 export class NonFiniteOutput extends BundleError {}
@@ -18,11 +19,7 @@ const MAX_THREADS = 64;
 const TEXT_BATCH = 64;   // prompts per text-encoder call, as TextEncoderSession.encode
 
 export class OrtBackend {
-  /**
-   * @param {import('./bundle.js').Bundle} bundle
-   * @param {string} variant e.g. 'fp32', 'int8'
-   * @param {{ort: object, threads?: number, providers?: string[]}} options
-   */
+  /** The sessions of `variant` ('fp32', 'int8', ...) of a Bundle on `ort` (onnxruntime-node or -web), each checked. */
   static async open(bundle, variant, { ort, threads = 1, providers }) {
     const manifest = bundle.manifest;
     if (!Object.hasOwn(manifest.variants, variant)) {
@@ -32,37 +29,28 @@ export class OrtBackend {
       throw new RangeError(`threads must be an int in [1, ${MAX_THREADS}], got ${threads}`);
     }
     const tokenizerFile = manifest.textEncoder.tokenizer;
-    const tokenizer = Tokenizer.fromText(new TextDecoder().decode(await bundle.read(tokenizerFile)),
-      `${bundle.where.replace(/\/$/, '')}/${tokenizerFile}`);
+    const tokenizer = Tokenizer.fromText(new TextDecoder().decode(await bundle.read(tokenizerFile)), bundle.path(tokenizerFile));
     if (tokenizer.maxLength !== manifest.textEncoder.maxLength) {
       throw new BundleError(`${tokenizer.source}: cuts at ${tokenizer.maxLength} tokens; manifest text_encoder.max_length is `
         + `${manifest.textEncoder.maxLength}`);
     }
     const sessions = {};
     for (const graph of GRAPHS) {
-      const { file } = graphFile(manifest, graph, variant);
+      const { file } = manifest.variants[variant][graph];
       const bytes = await bundle.read(file);
       try {
         sessions[graph] = await createSession(ort, bytes, { threads, providers });
       } catch (e) {
-        throw new BundleError(`${bundle.where.replace(/\/$/, '')}/${file}: onnxruntime cannot load it (${e.message})`);
+        throw new BundleError(`${bundle.path(file)}: onnxruntime cannot load it (${e.message})`);
       }
       bundle.checkSession(graph, file, sessions[graph], variant);
     }
-    // per-tensor int8 scales a batch by all its rows; per-row int8 (int8_fixed's step) does not depend on them
-    const rowByRow = new Set(GRAPHS.filter((g) => graphFile(manifest, g, variant).quantized
-      && graphFile(manifest, g, variant).quantization.method !== PER_ROW_INT8));
-    return new OrtBackend(ort, manifest, variant, tokenizer, sessions, rowByRow);
+    return new OrtBackend(ort, manifest, variant, tokenizer, sessions, rowByRow(manifest, variant));
   }
 
+  /** `rowByRow`: the graphs that run one row per call (those quantized per tensor). */
   constructor(ort, manifest, variant, tokenizer, sessions, rowByRow) {
-    this.ort = ort;
-    this.manifest = manifest;
-    this.dims = manifest.model;
-    this.variant = variant;
-    this.tokenizer = tokenizer;
-    this.sessions = sessions;
-    this.rowByRow = rowByRow;   // graphs that run one row per call (the quantized ones)
+    Object.assign(this, { ort, manifest, dims: manifest.model, variant, tokenizer, sessions, rowByRow });
     this.cacheHeads = this.dims.numLevels * this.dims.nHeads;   // past: [rows, L * n_heads, past, head_dim]
     // the portable variant: one time step per call into a cache of fixed capacity, written at `position`
     this.capacity = fixedCache(manifest, variant) ? manifest.portable.capacity : null;
@@ -88,13 +76,15 @@ export class OrtBackend {
     return out;
   }
 
+  #file(graph) { return this.manifest.variants[this.variant][graph].file; }
+
   /** `data`, or a NonFiniteOutput naming the graph: NaN or inf must never reach a motion (as the Python engine). */
   #finite(graph, data) {
     let bad = 0;
     for (let i = 0; i < data.length; i++) if (!Number.isFinite(data[i])) bad++;
     if (bad) {
-      throw new NonFiniteOutput(`${graphFile(this.manifest, graph, this.variant).file}: the ${graph} graph produced NaN or `
-        + `inf (${bad} of ${data.length} values); the bundle is broken (its weights or its export)`);
+      throw new NonFiniteOutput(`${this.#file(graph)}: the ${graph} graph produced NaN or inf (${bad} of ${data.length} `
+        + 'values); the bundle is broken (its weights or its export)');
     }
     return data;
   }
@@ -114,30 +104,24 @@ export class OrtBackend {
   }
 
   /**
-   * One step call.
-   * @param {Float32Array} textEmb (rows, text_dim)
-   * @param {Int32Array} tokens (rows, steps, L)
-   * @param {number} rows
-   * @param {object} past from emptyPast or the previous step
-   * @returns {Promise<{logits: Float32Array, past: object}>} logits (rows, steps, L, K + 1)
+   * One step call: textEmb (rows, text_dim), tokens (rows, steps, L), past from emptyPast or the previous step
+   * -> {logits (rows, steps, L, K + 1), past}.
    */
   async step(textEmb, tokens, rows, past) {
     if (this.capacity !== null) return this.#fixedStep(textEmb, tokens, rows, past);
     if (!this.rowByRow.has('step')) return this.#step(textEmb, tokens, rows, past);
-    const E = this.dims.textDim, perRow = tokens.length / rows;
     const outs = [];
-    for (let r = 0; r < rows; r++) {
-      outs.push(await this.#step(textEmb.slice(r * E, (r + 1) * E), tokens.slice(r * perRow, (r + 1) * perRow), 1, past[r]));
-    }
+    for (let r = 0; r < rows; r++) outs.push(await this.#step(rowOf(textEmb, rows, r), rowOf(tokens, rows, r), 1, past[r]));
     return { logits: concat(outs.map((o) => o.logits)), past: outs.map((o) => o.past) };
   }
 
-  async #step(textEmb, tokens, rows, past) {
+  async #step(textEmb, tokens, rows, past, position = null) {
     const L = this.dims.numLevels;
     const feed = {
       text_embedding: new this.ort.Tensor('float32', textEmb, [rows, this.dims.textDim]),
       tokens: new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [rows, tokens.length / (rows * L), L]),
     };
+    if (position !== null) feed.position = new this.ort.Tensor('int64', new BigInt64Array(rows).fill(BigInt(position)), [rows]);
     this.manifest.pastNames.forEach((name, i) => { feed[name] = past[i]; });
     const out = await this.sessions.step.run(feed);
     return { logits: this.#finite('step', out.logits.data), past: this.manifest.presentNames.map((name) => out[name]) };
@@ -150,33 +134,23 @@ export class OrtBackend {
       throw new RangeError(`the portable step's cache holds ${this.capacity} steps; ${past.length} are cached and ${S} `
         + "more were fed (the manifest's portable.capacity covers the generation loop)");
     }
-    const text = new this.ort.Tensor('float32', textEmb, [rows, this.dims.textDim]);
     const logits = new Float32Array(rows * S * L * V);
     let cache = past.tensors;
     for (let s = 0; s < S; s++) {
-      const ids = new BigInt64Array(rows * L);
-      for (let r = 0; r < rows; r++) for (let l = 0; l < L; l++) ids[r * L + l] = BigInt(tokens[(r * S + s) * L + l]);
-      const feed = { text_embedding: text, tokens: new this.ort.Tensor('int64', ids, [rows, 1, L]),
-        position: new this.ort.Tensor('int64', new BigInt64Array(rows).fill(BigInt(past.length + s)), [rows]) };
-      this.manifest.pastNames.forEach((name, i) => { feed[name] = cache[i]; });
-      const out = await this.sessions.step.run(feed);
-      const data = this.#finite('step', out.logits.data);
-      for (let r = 0; r < rows; r++) logits.set(data.subarray(r * L * V, (r + 1) * L * V), (r * S + s) * L * V);
-      cache = this.manifest.presentNames.map((name) => out[name]);
+      const ids = new Int32Array(rows * L);
+      for (let r = 0; r < rows; r++) ids.set(tokens.subarray((r * S + s) * L, (r * S + s + 1) * L), r * L);
+      const out = await this.#step(textEmb, ids, rows, cache, past.length + s);
+      for (let r = 0; r < rows; r++) logits.set(out.logits.subarray(r * L * V, (r + 1) * L * V), (r * S + s) * L * V);
+      cache = out.past;
     }
     return { logits, past: { tensors: cache, length: past.length + S } };
   }
 
-  /**
-   * Codebook lookup + causal decoder.
-   * @param {Int32Array} tokens (B, T, L) valid codes
-   * @returns {Promise<Float32Array>} de-normalised features (B, T * downsample, feature_dim)
-   */
+  /** Codebook lookup + causal decoder: tokens (B, T, L), valid codes -> de-normalised features (B, T * ds, D). */
   async decode(tokens, batch) {
     if (!this.rowByRow.has('lookup') && !this.rowByRow.has('decoder')) return this.#decode(tokens, batch);
-    const perRow = tokens.length / batch;
     const outs = [];
-    for (let r = 0; r < batch; r++) outs.push(await this.#decode(tokens.slice(r * perRow, (r + 1) * perRow), 1));
+    for (let r = 0; r < batch; r++) outs.push(await this.#decode(rowOf(tokens, batch, r), 1));
     return concat(outs);
   }
 
@@ -188,7 +162,7 @@ export class OrtBackend {
     const { features } = await this.sessions.decoder.run({ latent });
     const T = tokens.length / (batch * L), want = [batch, T * this.dims.downsample, this.dims.featureDim];
     if (features.dims.some((d, i) => d !== want[i])) {   // a wrong model.downsample would drop or invent frames
-      throw new BundleError(`${graphFile(this.manifest, 'decoder', this.variant).file}: decoded ${T} tokens to `
+      throw new BundleError(`${this.#file('decoder')}: decoded ${T} tokens to `
         + `[${features.dims.slice(1)}] frames x features; manifest model.downsample ${this.dims.downsample} and `
         + `model.feature_dim ${this.dims.featureDim} promise [${want.slice(1)}]`);
     }
@@ -200,6 +174,8 @@ export class OrtBackend {
     for (const session of Object.values(this.sessions)) await session.release?.();
   }
 }
+
+const rowOf = (array, rows, r) => array.slice((r * array.length) / rows, ((r + 1) * array.length) / rows);
 
 function concat(arrays) {
   const out = new Float32Array(arrays.reduce((n, a) => n + a.length, 0));

@@ -5,15 +5,15 @@
 //   const s = await gen.stream('a person walks forward', { seed: 1 });
 //   for await (const frame of s) { if (frame.time === 6) await s.setPrompt('a person turns left'); ... }
 //
-// The recipe is task.js (shared with nothing else here, and step for step Python's GenerationTask); this module
-// checks what a user asks for, with Python's checks and defaults, and shapes the results.
+// The recipe is decoding.js's GenerationTask (step for step Python's); this module checks what a user asks for,
+// with Python's checks and defaults, and shapes the results.
 
-import { Bundle } from './bundle.js';
+import { Bundle } from './bundle/folder.js';
+import { fileLoader } from './bundle/io.js';
+import { SamplingConfig } from './bundle/sampling.js';
+import { GenerationTask } from './decoding.js';
 import { OrtBackend } from './engine.js';
-import { fileLoader } from './io.js';
-import { expandSeeds } from './loop.js';
-import { SamplingConfig } from './sampling.js';
-import { GenerationTask } from './task.js';
+import { expandSeeds } from './policy.js';
 
 export const MAX_SECONDS = 3600;   // the longest fixed length on an endless bundle: the whole motion is kept
 
@@ -46,13 +46,9 @@ export function checkTexts(texts) {
 
 export class MotionGenerator {
   /**
-   * @param {string|{where: string, readBytes: Function}} source a bundle folder, or a loader (io.js)
-   * @param {object} [options]
-   * @param {string} [options.variant='fp32'] a variant the manifest lists ('fp32', 'int8', ...)
-   * @param {number} [options.threads=1] onnxruntime intra-op threads per graph
-   * @param {object} [options.ort] the onnxruntime module (default: onnxruntime-node)
-   * @param {string[]} [options.providers] execution providers (default ['cpu']; ['wasm'] with onnxruntime-web)
-   * @param {boolean} [options.verifyHashes=true] check each file read against the manifest's sha256
+   * The generator of `variant` ('fp32', 'int8', ...) of the bundle at `source`, a folder or a loader (bundle/io.js).
+   * `ort`: the onnxruntime module (default onnxruntime-node), `providers` its execution providers (default ['cpu'];
+   * ['wasm'] with onnxruntime-web), `threads` intra-op threads per graph, `verifyHashes` each file read checked.
    */
   static async load(source, { variant = 'fp32', threads = 1, ort = null, providers, verifyHashes = true } = {}) {
     if (typeof variant !== 'string' || !variant) {
@@ -66,21 +62,13 @@ export class MotionGenerator {
   }
 
   constructor(bundle, backend) {
-    this.bundle = bundle;
-    this.backend = backend;
-    this.variant = backend.variant;
-    this.dims = bundle.manifest.model;
-    this.skeleton = bundle.manifest.skeleton;
-    this.fps = this.dims.fps;
-    this.maxTokens = this.dims.maxTokens;
-    this.maxSeconds = this.dims.maxSeconds;
-    this.samplingDefaults = bundle.manifest.samplingDefaults;
+    const { model: dims, skeleton, samplingDefaults } = bundle.manifest;
+    Object.assign(this, { bundle, backend, variant: backend.variant, dims, skeleton, samplingDefaults });
+    Object.assign(this, { fps: dims.fps, maxTokens: dims.maxTokens, maxSeconds: dims.maxSeconds });
   }
 
   /** Whether the bundle was trained for endless streams (stream without end, setPrompt, long lengths). */
-  get endless() {
-    return this.bundle.manifest.streaming !== null;
-  }
+  get endless() { return this.bundle.manifest.streaming !== null; }
 
   /**
    * One motion per prompt (an array for an array), all prompts in one batched loop.
@@ -161,8 +149,8 @@ export class MotionGenerator {
     const config = sampling === null || sampling === undefined ? this.samplingDefaults : SamplingConfig.from(sampling);
     const seeds = expandSeeds(seed, texts.length);
     const emb = await this.backend.encodeText(texts);
-    const task = new GenerationTask({ backend: this.backend, sampling: config, maxTokens: this.maxTokens, fixedTokens,
-      streaming: this.bundle.manifest.streaming });
+    const task = new GenerationTask({ backend: this.backend, skeleton: this.skeleton, sampling: config,
+      maxTokens: this.maxTokens, fixedTokens, streaming: this.bundle.manifest.streaming });
     return { task, emb, seeds };
   }
 
@@ -178,9 +166,7 @@ export class MotionGenerator {
   }
 
   /** Free the onnxruntime sessions. */
-  async release() {
-    await this.backend.release();
-  }
+  async release() { await this.backend.release(); }
 }
 
 /**
@@ -200,22 +186,14 @@ export class FrameStream {
     this.frames = this.#frames();
   }
 
-  [Symbol.asyncIterator]() {
-    return this;
-  }
+  [Symbol.asyncIterator]() { return this; }
 
-  next() {
-    return this.frames.next();
-  }
+  next() { return this.frames.next(); }
 
-  return() {
-    return this.frames.return();
-  }
+  return() { return this.frames.return(); }
 
   /** Tokens sampled so far (frames lag behind by the decoding chunk). */
-  get tokens() {
-    return this.loop ? this.loop.count : 0;
-  }
+  get tokens() { return this.loop ? this.loop.count : 0; }
 
   /**
    * Follow `text` from the next token sampled on (frames already decoded do not change). The switch lands
@@ -228,8 +206,8 @@ export class FrameStream {
     }
     if (typeof text !== 'string') throw new TypeError(`setPrompt() takes one prompt (a string), got ${typeof text}`);
     checkTexts([text]);
-    // The loop must not change while a step is running (the step would write its context back over the new
-    // prompt's): an embedding that arrives then waits for #beforeStep, between two steps.
+    // The prompt must not change while a step runs (that step was planned under the old prompt, and an END it
+    // picks is picked again at once): an embedding that arrives then waits for #beforeStep, between two steps.
     this.pending = this.pending.then(async () => {
       this.queued.push({ emb: await this.gen.backend.encodeText([text]), text });
       if (!this.busy) this.#apply();
@@ -251,28 +229,23 @@ export class FrameStream {
   }
 
   /** End the stream (no more tokens are sampled). */
-  async close() {
-    await this.frames.return();
-  }
+  async close() { await this.frames.return(); }
 
+  /** Closing the stream (breaking out of the loop below) ends its token loop too. */
   async* #frames() {
     const { featureDim: D } = this.gen.dims, J3 = this.gen.skeleton.parents.length * 3;
-    let index = 0;
     try {
-      for (;;) {
-        this.busy = true;                 // from here until the chunk's frames are out, steps may be running
-        const next = await this.chunks.next();
+      this.busy = true;                   // from here until a chunk's frames are out, steps may be running
+      for await (const { index, features, joints } of this.chunks) {
         this.busy = false;
-        if (next.done) return;
-        const { features, joints, frames } = next.value;
-        for (let i = 0; i < frames; i++) {
-          yield { index, time: index / this.gen.fps, features: features.slice(i * D, (i + 1) * D), joints: joints.slice(i * J3, (i + 1) * J3) };
-          index += 1;
+        for (let i = 0; i < features.length / D; i++) {
+          yield { index: index + i, time: (index + i) / this.gen.fps, features: features.slice(i * D, (i + 1) * D),
+            joints: joints.slice(i * J3, (i + 1) * J3) };
         }
+        this.busy = true;
       }
     } finally {
       this.busy = false;
-      await this.chunks.return();         // closing the stream ends its token loop too
     }
   }
 }

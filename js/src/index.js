@@ -7,15 +7,18 @@
 //   motion.joints   // {data: Float32Array, dims: [frames, 22, 3]}, metres, y up
 
 export { MotionGenerator, FrameStream, MAX_SECONDS, checkTexts } from './generator.js';
-export { SamplingConfig } from './sampling.js';
-export { BundleError, parseManifest } from './manifest.js';
-export { NonFiniteOutput } from './engine.js';
-export { Bundle } from './bundle.js';
-export { fileLoader, urlLoader, LoadError } from './io.js';
+export { Bundle } from './bundle/folder.js';
+export { fileLoader, urlLoader, LoadError } from './bundle/io.js';
+export { parseManifest } from './bundle/manifest.js';
+export { SamplingConfig } from './bundle/sampling.js';
+export { BundleError } from './bundle/sections.js';
+export { OrtBackend, NonFiniteOutput } from './engine.js';
 export { Tokenizer, TokenizerError } from './tokenizer.js';
 export { PCG64 } from './pcg64.js';
-export { OrtBackend } from './engine.js';
-export { GenerationTask } from './task.js';
-export { EndlessLoop, generateTokens, expandSeeds } from './loop.js';
-export { FrameStreamer, decodeTokens } from './decode.js';
-export { FootLock, recoverFromRic, RootIntegrator } from './features.js';
+export { StepPolicy, expandSeeds, makeRngs, sample } from './policy.js';
+export { EndlessLoop, StreamContext } from './endless.js';
+export { FrameMaker, GenerationTask, collectTokens, decodeTokens, generateTokens } from './decoding.js';
+export { SKELETONS } from './kinematics/skeleton.js';
+export { recoverFromRic } from './kinematics/features.js';
+export { FootLock, FrameJoints, RootIntegrator } from './kinematics/frames.js';
+export { jointsToBvhText } from './outputs/bvh.js';

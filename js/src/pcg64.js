@@ -88,9 +88,7 @@ export class PCG64 {
     this.#step();
   }
 
-  #step() {
-    this.state = (this.state * PCG_MULTIPLIER + this.inc) & MASK128;
-  }
+  #step() { this.state = (this.state * PCG_MULTIPLIER + this.inc) & MASK128; }
 
   /** The next 64-bit output, as a BigInt. */
   nextUint64() {
@@ -102,7 +100,5 @@ export class PCG64 {
   }
 
   /** A float64 in [0, 1), as numpy's Generator.random(). */
-  random() {
-    return Number(this.nextUint64() >> 11n) * 2 ** -53;
-  }
+  random() { return Number(this.nextUint64() >> 11n) * 2 ** -53; }
 }

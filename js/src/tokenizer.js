@@ -14,15 +14,15 @@
 import * as tables from './unicode-tables.js';
 
 const WHITESPACE = /\p{White_Space}/u;   // Rust's char::is_whitespace
+const WHITESPACE_RUNS = /\p{White_Space}+/u;
 // tokenizers' own character classes (its Unicode tables are older than the engine's; see unicode-tables.js)
-const isOther = charClass(tables.OTHER);
-const isPunctuation = charClass(tables.PUNCTUATION);
-const isNonspacingMark = charClass(tables.NONSPACING_MARK);
+const OTHER = charClass(tables.OTHER);
+const PUNCTUATION = new RegExp(`(${charClass(tables.PUNCTUATION).source})`, 'u');   // split() keeps each one
+const NONSPACING_MARK = charClass(tables.NONSPACING_MARK);
 // the regex crate's Unicode \w, for the Whitespace pre-tokenizer's `\w+|[^\w\s]+`
 const WORD = '\\p{Alphabetic}\\p{M}\\p{Nd}\\p{Pc}\\p{Join_Control}';
 const WHITESPACE_PRETOKENS = new RegExp(`[${WORD}]+|[^${WORD}\\p{White_Space}]+`, 'gu');
-const CJK_RANGES = [[0x4e00, 0x9fff], [0x3400, 0x4dbf], [0x20000, 0x2a6df], [0x2a700, 0x2b73f], [0x2b740, 0x2b81f],
-  [0x2b920, 0x2ceaf], [0xf900, 0xfaff], [0x2f800, 0x2fa1f]];
+const CJK = charClass('4e00-9fff 3400-4dbf 20000-2a6df 2a700-2b73f 2b740-2b81f 2b920-2ceaf f900-faff 2f800-2fa1f');
 
 export class TokenizerError extends Error {}
 
@@ -56,9 +56,7 @@ export class Tokenizer {
     return new Tokenizer(json, source);
   }
 
-  tokenToId(token) {
-    return this.addedTokens.find((t) => t.content === token)?.id ?? this.model.vocab.get(token);
-  }
+  tokenToId(token) { return this.addedTokens.find((t) => t.content === token)?.id ?? this.model.vocab.get(token); }
 
   /** One prompt -> ids, truncated and wrapped in the template (no padding). */
   encode(text) {
@@ -118,21 +116,9 @@ function parseSettings(json, source, tok) {
   return { maxLength: trunc.max_length, padId: pad.pad_id, padToken: pad.pad_token, padMultiple: pad.pad_to_multiple_of ?? null };
 }
 
-/** A membership test for one character, from a table of space-separated hex code points and ranges. */
+/** A one-character class, from a table of space-separated hex code points and ranges. */
 function charClass(table) {
-  const bounds = table.split(' ').map((r) => r.split('-').map((h) => parseInt(h, 16)));
-  return (c) => {
-    const cp = c.codePointAt(0);
-    let lo = 0, hi = bounds.length - 1;
-    while (lo <= hi) {
-      const mid = (lo + hi) >> 1;
-      const [a, b = a] = bounds[mid];
-      if (cp < a) hi = mid - 1;
-      else if (cp > b) lo = mid + 1;
-      else return true;
-    }
-    return false;
-  };
+  return new RegExp(`[${table.split(' ').map((r) => r.split('-').map((h) => `\\u{${h}}`).join('-')).join('')}]`, 'u');
 }
 
 // ---- added tokens -------------------------------------------------------------------------------------
@@ -197,37 +183,18 @@ function makeNormalizer(spec, fail) {
   }
 }
 
-function cleanText(s) {
-  let out = '';
-  for (const c of s) {
-    if (c === '\t' || c === '\n' || c === '\r') out += ' ';
-    else if (c === '\0' || c === '\ufffd' || isOther(c)) continue;
-    else out += WHITESPACE.test(c) ? ' ' : c;
-  }
-  return out;
-}
+/** `s` with each character (code point) replaced by f(character). */
+const mapChars = (s, f) => Array.from(s, f).join('');
 
-function spaceChineseChars(s) {
-  let out = '';
-  for (const c of s) {
-    const cp = c.codePointAt(0);
-    out += CJK_RANGES.some(([lo, hi]) => cp >= lo && cp <= hi) ? ` ${c} ` : c;
-  }
-  return out;
-}
-
-function stripAccents(s) {
-  let out = '';
-  for (const c of s) if (!isNonspacingMark(c)) out += c;
-  return out;
-}
-
+const cleanText = (s) => mapChars(s, (c) => {
+  if (c === '\t' || c === '\n' || c === '\r') return ' ';
+  if (c === '\0' || c === '\ufffd' || OTHER.test(c)) return '';
+  return WHITESPACE.test(c) ? ' ' : c;
+});
+const spaceChineseChars = (s) => mapChars(s, (c) => (CJK.test(c) ? ` ${c} ` : c));
+const stripAccents = (s) => mapChars(s, (c) => (NONSPACING_MARK.test(c) ? '' : c));
 // Rust lowercases character by character (no context: a final capital sigma becomes σ, not ς)
-function lowercaseChars(s) {
-  let out = '';
-  for (const c of s) out += c.toLowerCase();
-  return out;
-}
+const lowercaseChars = (s) => mapChars(s, (c) => c.toLowerCase());
 
 // ---- pre-tokenizers -----------------------------------------------------------------------------------
 
@@ -245,35 +212,10 @@ function makePreTokenizer(spec, fail) {
   }
 }
 
-function splitWhitespace(s) {
-  const words = [];
-  let word = '';
-  for (const c of s) {
-    if (WHITESPACE.test(c)) {
-      if (word) words.push(word);
-      word = '';
-    } else word += c;
-  }
-  if (word) words.push(word);
-  return words;
-}
+const splitWhitespace = (s) => s.split(WHITESPACE_RUNS).filter(Boolean);
 
 /** Split on whitespace (dropped), then isolate every punctuation character. */
-function bertPreTokenize(s) {
-  const words = [];
-  for (const chunk of splitWhitespace(s)) {
-    let word = '';
-    for (const c of chunk) {
-      if (isPunctuation(c)) {
-        if (word) words.push(word);
-        words.push(c);
-        word = '';
-      } else word += c;
-    }
-    if (word) words.push(word);
-  }
-  return words;
-}
+const bertPreTokenize = (s) => splitWhitespace(s).flatMap((chunk) => chunk.split(PUNCTUATION).filter(Boolean));
 
 // ---- models -------------------------------------------------------------------------------------------
 

@@ -5,8 +5,8 @@
 import test from 'node:test';
 import assert from 'node:assert/strict';
 import { MotionGenerator } from '../src/generator.js';
-import { SamplingConfig } from '../src/sampling.js';
-import { EndlessLoop } from '../src/loop.js';
+import { SamplingConfig } from '../src/bundle/sampling.js';
+import { EndlessLoop } from '../src/endless.js';
 import { bundleReferences, maxAbsDiff, report } from './reference.mjs';
 
 const EMBEDDING_TOLERANCE = 1e-5;
@@ -126,9 +126,8 @@ for (const ref of bundleReferences()) {
       if (want.loop) {
         await t.test('an EndlessLoop of two streams, step by step, with its END restarts', async () => {
           const w = want.loop;
-          const { window, refresh } = gen.bundle.manifest.streaming;
           const loop = new EndlessLoop(gen.backend, await gen.backend.encodeText(w.texts), sampling(w.sampling),
-            w.seeds.map(BigInt), window, refresh);
+            w.seeds.map(BigInt), gen.bundle.manifest.streaming);
           for (const [step, expected] of w.tokens.entries()) {
             assert.deepEqual(rows(await loop.step(), L), expected, `step ${step}`);
             stats.tokens += expected.length * L;

@@ -1,17 +1,18 @@
 import test from 'node:test';
 import assert from 'node:assert/strict';
-import { FootLock } from '../src/features.js';
+import { FootLock } from '../src/kinematics/frames.js';
+import { SKELETONS } from '../src/kinematics/skeleton.js';
 import { readReference, report } from './reference.mjs';
 
 const { foot_lock: cases } = readReference('units.json');
 
-test('FootLock is motion.py FootLock bit for bit, in any chunking', () => {
+test('FootLock is kinematics/frames.py FootLock bit for bit, in any chunking', () => {
   let moved = 0;
   for (const { joints, features, locked } of cases) {
     const J = Float32Array.from(joints), F = Float32Array.from(features), n = F.length / 263;
     const want = Float32Array.from(locked);
     for (const chunk of [n, 1, 4]) {
-      const lock = new FootLock(22), got = [];
+      const lock = new FootLock(SKELETONS.humanml3d), got = [];
       for (let t = 0; t < n; t += chunk) {
         const end = Math.min(n, t + chunk);
         got.push(...lock.push(J.subarray(t * 66, end * 66), F.subarray(t * 263, end * 263)));
@@ -25,5 +26,5 @@ test('FootLock is motion.py FootLock bit for bit, in any chunking', () => {
 });
 
 test('FootLock refuses joints and features of different lengths', () => {
-  assert.throws(() => new FootLock(22).push(new Float32Array(66), new Float32Array(2 * 263)), /FootLock.push wants/);
+  assert.throws(() => new FootLock(SKELETONS.humanml3d).push(new Float32Array(66), new Float32Array(2 * 263)), /FootLock.push wants/);
 });

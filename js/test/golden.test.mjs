@@ -8,7 +8,7 @@ import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { fileURLToPath } from 'node:url';
 import { MotionGenerator } from '../src/generator.js';
-import { SamplingConfig } from '../src/sampling.js';
+import { SamplingConfig } from '../src/bundle/sampling.js';
 import { report } from './reference.mjs';
 
 const ROOT = fileURLToPath(new URL('../..', import.meta.url));

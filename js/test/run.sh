@@ -2,8 +2,8 @@
 # The JavaScript runtime's tests, from a clean clone (`make test-js` runs this):
 #   1. install onnxruntime-node into js/node_modules if it is missing (--ignore-scripts: its postinstall
 #      downloads binaries the registry package already ships, and fails offline);
-#   2. build the toy bundles of tests/runtime/toy_bundle.py (with and without a streaming section) in a
-#      temporary folder, with the repository's venv;
+#   2. build the toy bundles of tests/runtime/toy_bundle.py (with and without a streaming section, and with the
+#      portable, int8_fixed and ORT-format variants) in a temporary folder, with the repository's venv;
 #   3. write what the Python runtime gives on them (js/test/make_reference.py);
 #   4. run `node --test`, which compares and prints the parity numbers (lines starting "parity:").
 #
@@ -32,6 +32,10 @@ fi
 
 "$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/toy"
 "$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/toy-clips" --seed 1 --clips
+# as the pytest fixture portable_toy_bundle, its decoder centred on the mean pose the toy's manifest records
+(cd "$ROOT/tests/runtime" && "$PY" -c "import json, sys; import numpy as np; from pathlib import Path; from toy_bundle import build_toy_bundle
+mean = np.array(json.loads(Path(sys.argv[1], 'manifest.json').read_text())['normalization']['mean'], np.float32)
+build_toy_bundle(Path(sys.argv[2]), mean, portable=True, ort=True)" "$WORK/toy" "$WORK/toy-portable")
 # broken bundles: NaN weights in one graph each, hashes forged (tests/runtime/corrupt.py)
 BROKEN=""
 for graph in step.onnx decoder.onnx; do
@@ -40,7 +44,7 @@ for graph in step.onnx decoder.onnx; do
   BROKEN="$BROKEN $graph=$WORK/nan-$graph"
 done
 
-BUNDLES=(--bundle "toy=$WORK/toy" --bundle "toy-clips=$WORK/toy-clips")
+BUNDLES=(--bundle "toy=$WORK/toy" --bundle "toy-clips=$WORK/toy-clips" --bundle "toy-portable=$WORK/toy-portable")
 if [ "${MOGO_JS_TINY:-0}" = "1" ]; then
   if [ ! -f "$WORK/tiny/bundle/manifest.json" ]; then
     # as tests/tiny_bundle.py builds it, into our own folder (its .cache is shared with pytest)

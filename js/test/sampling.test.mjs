@@ -1,7 +1,8 @@
 import test from 'node:test';
 import assert from 'node:assert/strict';
 import { PCG64 } from '../src/pcg64.js';
-import { SamplingConfig, applyGuidance, pairwiseSum, sample } from '../src/sampling.js';
+import { SamplingConfig } from '../src/bundle/sampling.js';
+import { applyGuidance, pairwiseSum, sample } from '../src/policy.js';
 import { readReference, report } from './reference.mjs';
 
 const { sums, sampler } = readReference('units.json');

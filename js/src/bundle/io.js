@@ -6,7 +6,7 @@
 //   const gen = await MotionGenerator.load(urlLoader('/bundles/base/'), { ort: await import('onnxruntime-web') })
 //
 // A loader is { where, readBytes(name) -> Promise<Uint8Array> }; `name` is a plain file name the manifest
-// lists (manifest.js refuses anything else), so a loader never resolves a path outside its bundle.
+// lists (sections.js refuses anything else), so a loader never resolves a path outside its bundle.
 
 /** Files of a bundle folder on disk (Node). Refuses links and anything that is not a regular file. */
 export function fileLoader(dir) {
@@ -45,10 +45,7 @@ export function urlLoader(baseUrl, fetchFn = globalThis.fetch) {
 
 /** A file or URL that could not be read. */
 export class LoadError extends Error {
-  constructor(message) {
-    super(message);
-    this.name = 'LoadError';
-  }
+  name = 'LoadError';
 }
 
 /** Lowercase hex SHA-256 (WebCrypto: the same call in Node 20+ and browsers). */
@@ -58,20 +55,12 @@ export async function sha256Hex(bytes) {
 }
 
 /**
- * An onnxruntime session for one graph, with the options the Python runtime uses (text.py, session_options):
- * few threads, one graph at a time, all graph optimisations.
- * @param {object} ort onnxruntime-node or onnxruntime-web
- * @param {Uint8Array} bytes the .onnx file
- * @param {{threads: number, providers?: string[]}} options providers: ['cpu'] in Node, ['wasm'] in a browser
+ * An onnxruntime session (`ort`: onnxruntime-node or -web; `providers`: ['cpu'] in Node, ['wasm'] in a browser) for
+ * one graph's bytes, with the Python runtime's options (text.py): few threads, one graph at a time, all optimisations.
  */
 export async function createSession(ort, bytes, { threads, providers = ['cpu'] }) {
-  const options = {
-    executionProviders: providers,
-    intraOpNumThreads: threads,
-    interOpNumThreads: 1,
-    executionMode: 'sequential',
-    graphOptimizationLevel: 'all',
-  };
+  const options = { executionProviders: providers, intraOpNumThreads: threads, interOpNumThreads: 1,
+    executionMode: 'sequential', graphOptimizationLevel: 'all' };
   if (threads > 1) {
     // spinning workers fight the host's own threads for the cores (measured 2-3x slower on a busy machine)
     options.extra = { session: { intra_op: { allow_spinning: '0' } } };

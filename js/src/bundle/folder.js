@@ -1,28 +1,23 @@
-// A mogo bundle read through a loader (io.js), trusting nothing, as runtime/mogo_runtime/bundle.py:
+// A mogo bundle read through a loader (io.js), trusting nothing, as runtime/mogo_runtime/bundle/folder.py:
 // the manifest is parsed and checked field by field, every file the runtime reads must have the recorded size
 // and sha256, and each graph session must declare the inputs and outputs the manifest promises.
 //
 // One difference from Python: onnxruntime's JavaScript API cannot read a graph's metadata_props, so the
 // `mogo.<field>` facts in each graph are not compared with the manifest here (the I/O names, element types,
-// ranks and the logits' width are).
+// ranks and fixed sizes are).
 
-import { BundleError, graphSpec, parseManifest } from './manifest.js';
 import { sha256Hex } from './io.js';
+import { graphSpec, parseManifest } from './manifest.js';
+import { BundleError } from './sections.js';
 
 const MANIFEST_MAX_BYTES = 16 << 20;   // a real manifest is ~30 KB; refuse to parse anything huge
 
 export class Bundle {
   constructor(loader, manifest, verifyHashes) {
-    this.loader = loader;
-    this.where = loader.where;
-    this.manifest = manifest;
-    this.verifyHashes = verifyHashes;
+    Object.assign(this, { loader, where: loader.where, manifest, verifyHashes });
   }
 
-  /**
-   * @param {{where: string, readBytes: (name: string) => Promise<Uint8Array>}} loader
-   * @param {{verifyHashes?: boolean}} [options]
-   */
+  /** The bundle a loader ({where, readBytes(name) -> Promise<Uint8Array>}, io.js) reads, its manifest checked. */
   static async load(loader, { verifyHashes = true } = {}) {
     const where = `${loader.where.replace(/\/$/, '')}/manifest.json`;
     let bytes;
@@ -45,7 +40,7 @@ export class Bundle {
   async read(name) {
     const entry = this.manifest.files[name];
     if (!entry) throw new BundleError(`${this.where}: ${JSON.stringify(name)} is not part of this bundle`);
-    const path = `${this.where.replace(/\/$/, '')}/${name}`;
+    const path = this.path(name);
     let bytes;
     try {
       bytes = await this.loader.readBytes(name);
@@ -59,30 +54,31 @@ export class Bundle {
     return bytes;
   }
 
+  /** Where file `name` is, for messages. */
+  path(name) { return `${this.where.replace(/\/$/, '')}/${name}`; }
+
   /**
-   * An onnxruntime session of `graph` declares the inputs and outputs (names; element types and ranks where
-   * the binding reports them) that the manifest lists.
+   * An onnxruntime session of `graph` declares the inputs and outputs (names; element types, ranks and fixed
+   * sizes where the binding reports them) that the manifest lists: a fixed size is what a consumer allocates.
    */
   checkSession(graph, file, session, variant) {
     const spec = graphSpec(this.manifest, graph, variant);
-    const path = `${this.where.replace(/\/$/, '')}/${file}`;
+    const field = spec === this.manifest.graphs[graph] ? `graphs.${graph}` : 'portable.step';
+    const path = this.path(file);
     for (const [kind, names, metadata] of [['inputs', session.inputNames, session.inputMetadata],
       ['outputs', session.outputNames, session.outputMetadata]]) {
-      const declared = spec[kind];
-      const want = declared.map((d) => d.name).sort();
-      if (JSON.stringify([...names].sort()) !== JSON.stringify(want)) {
-        throw new BundleError(`${path}: ${kind} are ${JSON.stringify([...names].sort())}, manifest graphs.${graph}.${kind} lists ${JSON.stringify(want)}`);
-      }
+      const want = JSON.stringify(spec[kind].map((d) => d.name).sort()), got = JSON.stringify([...names].sort());
+      if (got !== want) throw new BundleError(`${path}: ${kind} are ${got}, manifest ${field}.${kind} lists ${want}`);
       if (!Array.isArray(metadata)) continue;   // older bindings: names only
-      for (const d of declared) {
-        const got = metadata.find((m) => m.name === d.name);
-        if (!got || !got.isTensor) continue;
-        if (got.type !== d.dtype) {
-          throw new BundleError(`${path}: ${kind.slice(0, -1)} ${JSON.stringify(d.name)} has type ${got.type}, manifest says ${d.dtype}`);
+      for (const d of spec[kind]) {
+        const io = metadata.find((m) => m.name === d.name);
+        if (!io?.isTensor) continue;
+        if (io.type !== d.dtype) {
+          throw new BundleError(`${path}: ${kind.slice(0, -1)} ${JSON.stringify(d.name)} has type ${io.type}, manifest says ${d.dtype}`);
         }
-        if (got.shape.length !== d.shape.length) {
-          throw new BundleError(`${path}: ${kind.slice(0, -1)} ${JSON.stringify(d.name)} has rank ${got.shape.length}, `
-            + `manifest shape is ${JSON.stringify(d.shape)}`);
+        if (io.shape.length !== d.shape.length || d.shape.some((n, i) => Number.isInteger(n) && io.shape[i] !== n)) {
+          throw new BundleError(`${path}: ${kind.slice(0, -1)} ${JSON.stringify(d.name)} has shape ${JSON.stringify(io.shape)}, `
+            + `manifest ${field} says ${JSON.stringify(d.shape)}`);
         }
       }
     }

@@ -1,0 +1,203 @@
+// manifest.json, typed and checked as runtime/mogo_runtime/bundle/manifest.py does (docs/bundle.md, "manifest.json"):
+// the sections (sections.js) in Python's order, then their agreement, so a broken or foreign bundle is refused,
+// with the file and the dotted field named, before any graph is opened. `parseManifest` returns a frozen object.
+
+import { featureLayout } from '../kinematics/features.js';
+import { SKELETONS, storedSkeleton } from '../kinematics/skeleton.js';
+import {
+  Fields, GRAPHS, PER_ROW_INT8, cacheNames, kind, parseCache, parseFiles, parseGraph, parseModel,
+  parseNormalization, parseOrt, parsePortable, parseSampling, parseStreaming, parseTca, parseTextEncoder,
+  parseVariants, sameJson,
+} from './sections.js';
+
+export const SCHEMA = 'mogo-bundle';
+export const SCHEMA_VERSION = 2;   // 2: cache-name templates; `normalization` an object; numbers stored as numbers
+// name -> rank of each graph's fixed inputs and outputs (the step graph's cache names come from `cache`)
+const GRAPH_IO = {
+  text_encoder: [{ input_ids: 2, attention_mask: 2 }, { text_embedding: 2 }],
+  step: [{ text_embedding: 2, tokens: 3 }, { logits: 4 }],
+  lookup: [{ tokens: 3 }, { latent: 3 }],
+  decoder: [{ latent: 3 }, { features: 3 }],
+};
+const ORT_SUFFIX = '.ort';          // graph files in onnxruntime's ORT format (section `ort`)
+const PORTABLE = 'portable';        // the variant whose step graph has a fixed-capacity cache (section `portable`)
+const INT8_FIXED = 'int8_fixed';    // the same step graph in per-row int8: batch-invariant
+
+/**
+ * Check and type a manifest read from JSON.
+ * @param {object} data the parsed manifest.json
+ * @param {string} where the file, which starts every error message
+ */
+export function parseManifest(data, where) {
+  const f = new Fields(data, where);
+  if (f.get('schema', null) !== SCHEMA) {
+    f.fail('schema', `is ${JSON.stringify(f.get('schema', null))}, expected "${SCHEMA}" (not a mogo bundle)`);
+  }
+  if (f.get('schema_version', null) !== SCHEMA_VERSION) {
+    f.fail('schema_version', `is ${JSON.stringify(f.get('schema_version', null))}; this runtime reads version `
+      + `${SCHEMA_VERSION} (re-export the bundle with \`mogo-export export\`)`);
+  }
+  const producer = f.get('producer', {});
+  if (kind(producer) !== 'object') f.fail('producer', `expected an object, got ${kind(producer)}`);
+  const model = parseModel(f.sub('model'));
+  const streaming = f.optional('streaming', (s) => parseStreaming(s, model));
+  const m = {
+    producer, model, streaming,
+    skeleton: parseSkeleton(f.sub('skeleton'), f.sub('features'), model),
+    normalization: parseNormalization(f.sub('normalization'), model),
+    textEncoder: parseTextEncoder(f.sub('text_encoder')),
+    samplingDefaults: parseSampling(f.sub('sampling_defaults')),
+    cache: parseCache(f.sub('cache')),
+    files: parseFiles(f.sub('files')),
+    graphs: Object.fromEntries(GRAPHS.map((g) => [g, parseGraph(f.sub('graphs').sub(g))])),
+    variants: parseVariants(f.sub('variants')),
+    tca: f.optional('tca', (s) => parseTca(s, model)),
+    ort: f.optional('ort', parseOrt),
+    portable: f.optional('portable', (s) => parsePortable(s, model, streaming)),
+  };
+  m.pastNames = cacheNames(m.cache.past, model.nLayers);
+  m.presentNames = cacheNames(m.cache.present, model.nLayers);
+  checkAgreement(m, f);
+  checkFixedCache(m, f);
+  checkOrt(m, f);
+  return deepFreeze(m);
+}
+
+/**
+ * Whether the variant's step graph is the portable one or its per-row int8 form (fixed-capacity cache, `position`),
+ * or an ORT-format variant converted from one.
+ */
+export const fixedCache = (manifest, variant) => [PORTABLE, INT8_FIXED].includes(manifest.ort?.variants[variant] ?? variant);
+
+/** The graphs that run one row per call: those quantized per tensor, whose rows would depend on each other. */
+export const rowByRow = (manifest, variant) => new Set(GRAPHS.filter((g) => manifest.variants[variant][g].quantized
+  && manifest.variants[variant][g].quantization.method !== PER_ROW_INT8));
+
+/** The inputs and outputs a variant's graph has: the portable step's differ from `graphs.step`. */
+export function graphSpec(manifest, graph, variant) {
+  return graph === 'step' && fixedCache(manifest, variant) ? manifest.portable.step : manifest.graphs[graph];
+}
+
+/** The skeleton must be one this runtime knows, stored exactly: the joints code relies on its tables. */
+function parseSkeleton(f, features, model) {
+  const name = f.str('name');
+  if (!Object.hasOwn(SKELETONS, name)) {
+    f.fail('name', `unknown skeleton ${JSON.stringify(name)}; this runtime knows ${Object.keys(SKELETONS).sort().join(', ')}`);
+  }
+  for (const [key, want] of Object.entries(storedSkeleton(SKELETONS[name]))) {
+    if (!sameJson(f.get(key), want)) {
+      f.fail(key, `differs from the ${JSON.stringify(name)} skeleton this runtime knows (${JSON.stringify(want).slice(0, 60)}...)`);
+    }
+  }
+  const layout = featureLayout(SKELETONS[name].parents.length);
+  if (!sameJson(features.obj, layout)) {
+    features.fail('', `differs from the feature layout of the ${JSON.stringify(name)} skeleton this runtime knows`);
+  }
+  if (layout.dim !== model.featureDim) {
+    f.fail('name', `${JSON.stringify(name)} has ${layout.dim} features per frame, model.feature_dim is ${model.featureDim}`);
+  }
+  return SKELETONS[name];
+}
+
+const each = (names, value) => Object.fromEntries(names.map((n) => [n, value]));
+
+/** Files named by variants and sections are listed; each graph's I/O names and ranks; the step's I/O is the cache. */
+function checkAgreement(m, f) {
+  for (const [v, graphs] of Object.entries(m.variants)) {
+    for (const [g, { file }] of Object.entries(graphs)) {
+      if (!Object.hasOwn(m.files, file)) f.fail(`variants.${v}.${g}.file`, `${JSON.stringify(file)} is not in 'files'`);
+    }
+  }
+  const named = { 'text_encoder.tokenizer': m.textEncoder.tokenizer, 'tca.file': m.tca?.file,
+    'ort.required_operators': m.ort?.requiredOperators };
+  for (const [field, name] of Object.entries(named)) {
+    if (name !== undefined && !Object.hasOwn(m.files, name)) {
+      f.fail(field, `${JSON.stringify(name)} is named by the manifest but not listed in 'files'`);
+    }
+  }
+  for (const [graph, [inputs, outputs]] of Object.entries(GRAPH_IO)) {
+    const step = graph === 'step';
+    for (const [io, want] of [['inputs', { ...inputs, ...each(step ? m.pastNames : [], 4) }],
+      ['outputs', { ...outputs, ...each(step ? m.presentNames : [], 4) }]]) {
+      const got = Object.fromEntries(m.graphs[graph][io].map((s) => [s.name, s.shape.length]));
+      if (!sameJson(Object.keys(got), Object.keys(want)) || !sameJson(got, want)) {
+        f.fail(`graphs.${graph}.${io}`, `names and ranks are ${JSON.stringify(got)}, expected ${JSON.stringify(want)}`
+          + `${step ? ' (n_layers and the cache templates)' : ''}`);
+      }
+    }
+  }
+  const logits = m.graphs.step.outputs[0].shape, { numLevels: L, codebookSize: K } = m.model;
+  if (logits.length !== 4 || logits[2] !== L || logits[3] !== K + 1) {
+    f.fail('graphs.step.outputs[0].shape', `${JSON.stringify(logits)} should end in [${L}, ${K + 1}] (levels, codes + END)`);
+  }
+}
+
+/** The portable section and the portable variant come together; the step's I/O is the fixed cache. */
+function checkFixedCache(m, f) {
+  const has = (v) => Object.hasOwn(m.variants, v);
+  if ((m.portable === null) === has(PORTABLE)) {
+    f.fail('portable', m.portable ? "the bundle has no 'portable' variant for it to describe"
+      : "missing: variant 'portable' needs this section (its step graph's inputs, outputs and capacity)");
+  }
+  if (has(INT8_FIXED) && !has(PORTABLE)) {
+    f.fail(`variants.${INT8_FIXED}`, `comes with variant "${PORTABLE}", whose section 'portable' describes its step graph`);
+  }
+  if (m.portable === null) return;
+  const quantized = GRAPHS.find((g) => m.variants[PORTABLE][g].quantized);
+  if (quantized) f.fail(`variants.${PORTABLE}.${quantized}.quantization`, 'the portable variant is fp32 only (no int8 operators)');
+  const fixedStep = has(INT8_FIXED) ? m.variants[INT8_FIXED].step : null;
+  if (fixedStep && fixedStep.quantization?.method !== PER_ROW_INT8) {
+    f.fail(`variants.${INT8_FIXED}.step.quantization`, `its step graph is the portable step quantized per row (method `
+      + `"${PER_ROW_INT8}"), got ${JSON.stringify(fixedStep.quantization)}`);
+  }
+  const { numLevels: L, nHeads, headDim, textDim, codebookSize: K } = m.model;
+  const cache = ['float32', [L * nHeads, m.portable.capacity, headDim]];
+  const want = {
+    inputs: { text_embedding: ['float32', [textDim]], tokens: ['int64', [1, L]], position: ['int64', []], ...each(m.pastNames, cache) },
+    outputs: { logits: ['float32', [1, L, K + 1]], ...each(m.presentNames, cache) },
+  };
+  for (const [io, expected] of Object.entries(want)) {
+    const specs = m.portable.step[io], names = specs.map((s) => s.name);
+    if (!sameJson(names, Object.keys(expected))) {
+      f.fail(`portable.step.${io}`, `names are ${JSON.stringify(names)}, expected ${JSON.stringify(Object.keys(expected))} `
+        + '(n_layers and the cache templates)');
+    }
+    specs.forEach(({ name, dtype, shape }, i) => {
+      // every dim but the batch is fixed: a consumer allocates the cache once, from these numbers
+      if (dtype !== expected[name][0] || !sameJson(shape.slice(1), expected[name][1])) {
+        f.fail(`portable.step.${io}[${i}]`, `"${name}" is ${dtype} [${shape.join(', ')}], expected ${expected[name][0]} `
+          + `[${['batch', ...expected[name][1]].join(', ')}]`);
+      }
+    });
+  }
+}
+
+/** ORT-format variants: each listed with its source, every file an .ort, quantized as its source. */
+function checkOrt(m, f) {
+  const ort = m.ort?.variants ?? {}, has = (v) => Object.hasOwn(m.variants, v);
+  for (const [v, graphs] of Object.entries(m.variants)) {
+    const inOrt = Object.values(graphs).map((e) => e.file.endsWith(ORT_SUFFIX)), any = inOrt.includes(true);
+    if (any !== Object.hasOwn(ort, v) || any !== !inOrt.includes(false)) {
+      f.fail(`variants.${v}`, Object.hasOwn(ort, v) ? `an ORT-format variant has only ${ORT_SUFFIX} files`
+        : `${ORT_SUFFIX} files belong to variants listed in ort.variants with their source`);
+    }
+  }
+  for (const [v, source] of Object.entries(ort)) {
+    if (!has(v) || !has(source) || Object.hasOwn(ort, source)) {
+      f.fail(`ort.variants.${v}`, `"${v}" converted from "${source}": both must be variants, the source not itself in ORT format`);
+    }
+    for (const g of GRAPHS) {
+      if (!sameJson(m.variants[v][g].quantization, m.variants[source][g].quantization)) {
+        f.fail(`variants.${v}.${g}.quantization`, `differs from variant "${source}", which it was converted from`);
+      }
+    }
+  }
+}
+
+function deepFreeze(obj) {
+  if (obj && typeof obj === 'object' && !ArrayBuffer.isView(obj) && !Object.isFrozen(obj)) {
+    Object.freeze(obj);
+    for (const v of Object.values(obj)) deepFreeze(v);
+  }
+  return obj;
+}

@@ -1,0 +1,265 @@
+// The manifest's sections, typed: one parser per section, checking every field it reads and naming the file and
+// the dotted field when one is wrong (runtime/mogo_runtime/bundle/sections.py; docs/bundle.md, "manifest.json").
+// manifest.js puts them together and checks that they agree. Sections come back as plain objects, camelCase.
+
+import { SamplingConfig } from './sampling.js';
+
+export const GRAPHS = ['text_encoder', 'step', 'lookup', 'decoder'];
+export const DTYPES = ['float32', 'int64', 'float16'];
+export const PER_ROW_INT8 = 'mogo.per_row_dynamic';   // int8 with one activation scale per row: batchable
+export const PORTABLE_OPSET = 17;   // the portable variant's graphs' opset: this or lower (LayerNormalization's first)
+const NORMALIZATION = 'decoder-output-denormalised';   // decoder.onnx multiplies by Std and adds Mean itself
+const SHA256 = /^[0-9a-f]{64}$/;
+// the `model` section: snake_case name -> the name the JavaScript side uses
+const MODEL_FIELDS = {
+  num_levels: 'numLevels', codebook_size: 'codebookSize', n_layers: 'nLayers', n_heads: 'nHeads',
+  head_dim: 'headDim', text_dim: 'textDim', max_rel_dist: 'maxRelDist', downsample: 'downsample', fps: 'fps',
+  receptive_field: 'receptiveField', feature_dim: 'featureDim', latent_dim: 'latentDim', max_tokens: 'maxTokens',
+};
+
+/** A bundle that cannot be used: the message names the file and the field. */
+export class BundleError extends Error {
+  name = 'BundleError';
+}
+
+/** Typed reads from one JSON object (checks.py Fields); every failure names the file and the dotted field. */
+export class Fields {
+  constructor(obj, where, path = '') {
+    if (obj === null || typeof obj !== 'object' || Array.isArray(obj)) {
+      throw new BundleError(`${where}${path ? `: field ${path}` : ''}: must be a JSON object, got ${kind(obj)}`);
+    }
+    Object.assign(this, { obj, where, path });
+  }
+
+  name(key) { return [this.path, key].filter(Boolean).join('.'); }
+
+  fail(key, message) { throw new BundleError(`${this.where}: field ${this.name(key)}: ${message}`); }
+
+  /** The value at `key`; missing: `fallback`, or a failure when there is none. */
+  get(key, fallback) {
+    if (Object.hasOwn(this.obj, key)) return this.obj[key];
+    if (fallback === undefined) this.fail(key, 'missing');
+    return fallback;
+  }
+
+  int(key, lo = 0, hi = 2 ** 31, fallback) {
+    const v = this.get(key, fallback);
+    if (!Number.isInteger(v) || v < lo || v > hi) this.fail(key, `expected an integer in [${lo}, ${hi}], got ${show(v)}`);
+    return v;
+  }
+
+  num(key, lo, hi) {
+    const v = this.get(key);
+    if (!Number.isFinite(v) || !(v > lo && v <= hi)) this.fail(key, `expected a number in (${lo}, ${hi}], got ${show(v)}`);
+    return v;
+  }
+
+  str(key, fallback) {
+    const v = this.get(key, fallback);
+    if (typeof v !== 'string' || !v) this.fail(key, `expected a non-empty string, got ${show(v)}`);
+    return v;
+  }
+
+  sub(key) { return new Fields(this.get(key), this.where, this.name(key)); }
+
+  list(key) {
+    const v = this.get(key);
+    if (!Array.isArray(v)) this.fail(key, `expected a list, got ${kind(v)}`);
+    return v;
+  }
+
+  /** The section at `key` through `parse`, or null where it is missing or null. */
+  optional(key, parse) { return this.get(key, null) === null ? null : parse(this.sub(key)); }
+}
+
+export const kind = (v) => (v === null ? 'null' : Array.isArray(v) ? 'list' : typeof v);
+const show = (v) => (v === undefined ? 'nothing' : JSON.stringify(v));
+
+/** JSON values compared as JSON (object key order aside). */
+export function sameJson(a, b) {
+  if (Array.isArray(a) || Array.isArray(b)) {
+    return Array.isArray(a) && Array.isArray(b) && a.length === b.length && a.every((x, i) => sameJson(x, b[i]));
+  }
+  if (a !== null && b !== null && typeof a === 'object' && typeof b === 'object') {
+    const keys = Object.keys(a);
+    return keys.length === Object.keys(b).length && keys.every((k) => Object.hasOwn(b, k) && sameJson(a[k], b[k]));
+  }
+  return a === b;
+}
+
+/** The network's sizes; special tokens past the codebook: END = K ends the motion, BOS = K+1 the prompt prefix. */
+export function parseModel(f) {
+  const model = {};
+  for (const [key, name] of Object.entries(MODEL_FIELDS)) {
+    model[name] = key === 'fps' ? f.num(key, 0, 1000) : f.int(key, key === 'receptive_field' ? 0 : 1);
+  }
+  const K = model.codebookSize, derived = { end_id: K, bos_id: K + 1, pad_id: K + 2, d_model: model.nHeads * model.headDim };
+  for (const [key, want] of Object.entries(derived)) {
+    if (f.get(key, want) !== want) f.fail(key, `is ${show(f.get(key))}, the other sizes imply ${want}`);
+  }
+  return { ...model, endId: K, bosId: K + 1, padId: K + 2, maxSeconds: (model.maxTokens * model.downsample) / model.fps };
+}
+
+/** A graph's inputs and outputs: {name, dtype, shape} each (every tensor read first, as Python), names distinct. */
+export function parseGraph(f) {
+  const graph = Object.fromEntries(['inputs', 'outputs'].map((io) => [io, f.list(io).map((d, i) => {
+    const t = new Fields(d, f.where, `${f.path}.${io}[${i}]`), dtype = t.str('dtype'), shape = t.list('shape');
+    if (!DTYPES.includes(dtype)) t.fail('dtype', `expected one of ${DTYPES.join(', ')}, got ${show(dtype)}`);
+    if (shape.length > 8 || !shape.every((n) => typeof n === 'string' || (Number.isInteger(n) && n >= 1))) {
+      t.fail('shape', `expected at most 8 dims, each a name or an integer >= 1, got ${JSON.stringify(shape)}`);
+    }
+    return { name: t.str('name'), dtype, shape };
+  })]));
+  for (const [io, specs] of Object.entries(graph)) {
+    const names = specs.map((s) => s.name);
+    if (!specs.length || new Set(names).size !== names.length) {
+      f.fail(io, `expected a non-empty list of distinct names, got ${JSON.stringify(names)}`);
+    }
+  }
+  return graph;
+}
+
+/** The cache I/O names for n layers, key then value per layer, e.g. `past_key_values.{layer}.{kind}`. */
+export function cacheNames(template, nLayers) {
+  return Array.from({ length: nLayers }, (_, layer) => ['key', 'value'].map(
+    (kind) => formatTemplate(template, { layer, kind }))).flat();
+}
+
+/** Python's str.format for {layer} and {kind}; null for any other field (an unusable template). */
+function formatTemplate(template, values) {
+  let unknown = false;
+  const out = template.replace(/\{([^{}]*)\}/g, (_, key) => {
+    unknown ||= !Object.hasOwn(values, key);
+    return String(values[key]);
+  });
+  return unknown ? null : out;
+}
+
+export function parseCache(f) {
+  const cache = { past: f.str('past'), present: f.str('present') };
+  for (const key of ['past', 'present']) {
+    const names = cacheNames(cache[key], 2);
+    if (names.includes(null) || new Set(names).size !== 4 || formatTemplate(cache[key], { layer: 0, kind: 'key' }) === cache[key]) {
+      f.fail(key, `a name template with {layer} and {kind} fields, got ${show(cache[key])}`);
+    }
+  }
+  return cache;
+}
+
+export function parseTextEncoder(f) {
+  if (f.str('pooling', 'mean') !== 'mean') f.fail('pooling', `only mean pooling is supported, got ${show(f.get('pooling'))}`);
+  return { name: f.str('name'), tokenizer: f.str('tokenizer'), maxLength: f.int('max_length', 2, 65536), pooling: 'mean' };
+}
+
+/** Listed for reference (mode NORMALIZATION: the decoder applies them itself). */
+export function parseNormalization(f, model) {
+  if (f.str('mode') !== NORMALIZATION) f.fail('mode', `expected "${NORMALIZATION}", got ${show(f.get('mode'))}`);
+  const stats = {};
+  for (const key of ['mean', 'std']) {
+    const v = f.list(key);
+    if (v.length !== model.featureDim || !v.every(Number.isFinite)) f.fail(key, `expected ${model.featureDim} finite numbers`);
+    const least = Math.min(...v);
+    // features are scaled by std: 0 flattens a feature, < 0 mirrors it
+    if (key === 'std' && least <= 0) f.fail(key, `every value must be > 0, got ${least} at index ${v.indexOf(least)}`);
+    stats[key] = Float64Array.from(v);
+  }
+  return stats;
+}
+
+/** The context of endless streams the model was trained for (docs/bundle.md, "Endless streams"). */
+export function parseStreaming(f, model) {
+  const spec = { window: f.int('window', 1), refresh: f.int('refresh', 1) };
+  if (spec.window + spec.refresh > model.maxRelDist) {   // as trained: every distance to the prefix is distinct
+    f.fail('refresh', `window + refresh is ${spec.window + spec.refresh}, more than model.max_rel_dist ${model.maxRelDist}`);
+  }
+  return spec;
+}
+
+/**
+ * Cache slots the loop can fill: a clip's BOS and max_tokens (one spare: a consumer may feed its last pick too),
+ * an endless stream's BOS and window + refresh.
+ */
+export const requiredCapacity = (model, streaming) => Math.max(model.maxTokens + 1,
+  streaming ? 1 + streaming.window + streaming.refresh : 0);
+
+/** The portable variant's step graph (docs/bundle.md, "The portable variant"): a cache of `capacity` slots. */
+export function parsePortable(f, model, streaming) {
+  const need = requiredCapacity(model, streaming), capacity = f.get('capacity');
+  if (Number.isInteger(capacity) && capacity >= 1 && capacity < need) {
+    f.fail('capacity', `is ${capacity}; the generation loop can hold ${need} steps `
+      + '(max(max_tokens + 1, 1 + streaming window + refresh))');
+  }
+  return { capacity: f.int('capacity', need), opset: f.int('opset', 7, PORTABLE_OPSET), step: parseGraph(f.sub('step')) };
+}
+
+/** Variants in onnxruntime's ORT format (ORT variant -> the variant it was converted from) and their operators. */
+export function parseOrt(f) {
+  const variants = f.sub('variants');
+  if (!Object.keys(variants.obj).length) f.fail('variants', 'expected at least one ORT-format variant');
+  const requiredOperators = f.str('required_operators');
+  const sources = Object.fromEntries(Object.keys(variants.obj).map((v) => [v, variants.str(v)]));
+  return { requiredOperators, variants: sources, onnxruntime: f.str('onnxruntime') };
+}
+
+/** The caption index of text condition alignment (docs/tca.md); keys nothing reads are ignored, as in Python. */
+export function parseTca(f, model) {
+  const defaults = { lexical_weight: 0.05, split_margin: 0.02 };
+  for (const [key, fallback] of Object.entries(defaults)) {
+    const v = f.get(key, fallback);
+    if (typeof v !== 'number' || !(v >= 0 && v <= 1)) f.fail(key, `expected a number in [0, 1], got ${show(v)}`);
+  }
+  if (!['int8', 'float16'].includes(f.get('dtype'))) f.fail('dtype', `expected "int8" or "float16", got ${show(f.get('dtype'))}`);
+  if (f.get('dim') !== model.textDim) f.fail('dim', `is ${show(f.get('dim'))}, model.text_dim is ${model.textDim}`);
+  if (typeof f.get('labels') !== 'boolean') f.fail('labels', `expected true or false, got ${show(f.get('labels'))}`);
+  return {
+    file: f.str('file'), count: f.int('count', 1), dim: model.textDim, dtype: f.get('dtype'), encoder: f.str('encoder'),
+    labels: f.get('labels'), split: f.str('split', 'train'),
+    lexicalWeight: f.get('lexical_weight', defaults.lexical_weight), splitMargin: f.get('split_margin', defaults.split_margin),
+  };
+}
+
+export function parseSampling(f) {
+  const unknown = Object.keys(f.obj).filter((k) => !['temperature', 'top_k', 'top_p', 'guidance'].includes(k));
+  if (unknown.length) f.fail(unknown.sort()[0], 'unknown sampling setting');
+  try {
+    return SamplingConfig.fromManifest(f.obj);
+  } catch (e) {
+    throw new BundleError(`${f.where}: field ${f.path}: ${e.message}`);
+  }
+}
+
+/** name -> {bytes, sha256}; bundle files are plain names inside the bundle folder: no directories, no way out. */
+export function parseFiles(f) {
+  const files = {};
+  for (const name of Object.keys(f.obj)) {
+    const entry = f.sub(name);
+    if (!name || name.includes('/') || name === '.' || name === '..' || name.includes('\\') || name.includes('\0')) {
+      f.fail(name, 'a bundle file must be a plain file name inside the bundle folder');
+    }
+    const digest = entry.str('sha256');
+    if (!SHA256.test(digest)) entry.fail('sha256', `expected 64 lowercase hex digits, got ${show(digest)}`);
+    files[name] = { bytes: entry.int('bytes', 0, 2 ** 40), sha256: digest };
+  }
+  if (!Object.keys(files).length) f.fail('', 'lists no files');
+  return files;
+}
+
+/**
+ * variant -> graph -> {file, quantization, quantized}. A quantization is {method, ...the exporter's options}:
+ * `method` is what a reader acts on (PER_ROW_INT8 runs batched, any other one row per call: docs/bundle.md).
+ */
+export function parseVariants(f) {
+  if (!Object.hasOwn(f.obj, 'fp32')) f.fail('fp32', 'missing: every bundle has the fp32 variant');
+  const variants = {};
+  for (const v of Object.keys(f.obj)) {
+    const graphs = f.sub(v);
+    variants[v] = Object.fromEntries(GRAPHS.map((g) => {
+      const e = graphs.sub(g), q = e.get('quantization', null);
+      if (q !== null && kind(q) !== 'object') e.fail('quantization', `expected an object or null, got ${kind(q)}`);
+      const file = e.str('file'), quantized = q !== null && Object.keys(q).length > 0;
+      if (quantized) e.sub('quantization').str('method');
+      return [g, { file, quantization: quantized ? q : null, quantized }];
+    }));
+  }
+  return variants;
+}

@@ -1,0 +1,199 @@
+// The generation recipe, step for step as runtime/mogo_runtime/decoding.py. Per step the backend's transformer step
+// emits the logits of every level for the next time step; the step policy (policy.js) picks the tokens; level 0
+// choosing END stops a clip (`generateTokens`) or restarts an endless stream's prompt (endless.js). Frames come from
+// the causal decoder, once at the end (`decodeTokens`) or window by window as tokens arrive (`FrameMaker`), with
+// identical results because a frame depends only on the last receptive_field + 1 tokens.
+//
+// Tokens are Int32Array rows of L levels; logits (rows, steps, L, K + 1) float32 as onnxruntime returns them.
+
+import { EndlessLoop } from './endless.js';
+import { recoverFromRic } from './kinematics/features.js';
+import { FootLock, FrameJoints } from './kinematics/frames.js';
+import { StepPolicy, makeRngs } from './policy.js';
+
+export const MAX_CHUNK = 1024;   // tokens per decode; more only delays frames (and the window is allocated up front)
+
+/**
+ * Yields {picked (B, L), alive (B)} once per time step until every prompt has ended. alive[b] is 0 from the step
+ * where prompt b chose END (its tokens that step are meaningless). With `fixedTokens` END is forbidden and every
+ * prompt runs exactly that many steps.
+ * @param {Float32Array} textEmb (B, text_dim)
+ */
+export async function* generateTokens(backend, textEmb, sampling, rngs, maxTokens, fixedTokens = null) {
+  const dims = backend.dims, policy = new StepPolicy(sampling, dims), B = rngs.length, L = dims.numLevels;
+  const rowsEmb = policy.condition(textEmb), rows = B * policy.rows;
+  let tokens = new Int32Array(rows * L).fill(dims.bosId);
+  let past = backend.emptyPast(rows);
+  const alive = new Uint8Array(B).fill(1);
+  for (let t = 0; t < (fixedTokens ?? maxTokens); t++) {
+    const out = await backend.step(rowsEmb, tokens, rows, past);
+    past = out.past;
+    const picked = policy.pick(out.logits, new Array(B).fill(fixedTokens === null && t >= 1), rngs);
+    for (let b = 0; b < B; b++) if (picked[b * L] === dims.endId) alive[b] = 0;
+    yield { picked, alive: alive.slice() };
+    if (!alive.some(Boolean)) return;
+    // ended prompts keep feeding a valid code; their rows are independent and their output is ignored
+    tokens = policy.feed(picked.map((v, i) => (alive[Math.floor(i / L)] ? v : 0)), B);
+  }
+}
+
+/** Runs the loop to the end: -> one (T_b, L) Int32Array per prompt. */
+export async function collectTokens(steps, batch, numLevels) {
+  const out = Array.from({ length: batch }, () => []);
+  for await (const { picked, alive } of steps) {
+    for (let b = 0; b < batch; b++) if (alive[b]) out[b].push(...picked.subarray(b * numLevels, (b + 1) * numLevels));
+  }
+  return out.map((o) => Int32Array.from(o));
+}
+
+/** One (T_b, L) token array per prompt -> its (T_b * downsample, D) features, all prompts in one padded batch. */
+export async function decodeTokens(backend, tokenSeqs) {
+  const { numLevels: L, downsample, featureDim: D } = backend.dims;
+  const lengths = tokenSeqs.map((s) => s.length / L);
+  const T = Math.max(...lengths);
+  if (T === 0) return tokenSeqs.map(() => new Float32Array(0));
+  const batch = new Int32Array(tokenSeqs.length * T * L);
+  tokenSeqs.forEach((seq, b) => batch.set(seq, b * T * L));
+  const features = await backend.decode(batch, tokenSeqs.length);           // (B, T * ds, D)
+  return lengths.map((n, b) => features.slice(b * T * downsample * D, (b * T + n) * downsample * D));
+}
+
+/**
+ * One stream's tokens -> its frames as they come: the causal decoder's window of recent tokens, then joints
+ * integrated frame by frame (FrameJoints). The first token is decoded at once (time to first frame); later tokens
+ * `chunk` at a time, each decode reading receptive_field + chunk tokens, so frames come in bursts of
+ * chunk * downsample (decoding.py says why 4). The caller runs the decoder: `window(n)` in, `framesFrom` out.
+ */
+export class FrameMaker {
+  constructor(dims, skeleton, chunk = 1) {
+    if (!Number.isInteger(chunk) || chunk < 1 || chunk > MAX_CHUNK) {
+      throw new RangeError(`chunk must be an int in [1, ${MAX_CHUNK}], got ${chunk}`);
+    }
+    this.dims = dims;
+    this.chunk = chunk;
+    this.tokens = new Int32Array((dims.receptiveField + chunk) * dims.numLevels);
+    this.count = 0;     // tokens pushed
+    this.pending = 0;   // tokens pushed whose frames were not made yet
+    this.frames = 0;    // frames made
+    this.joints = new FrameJoints(skeleton);
+  }
+
+  /** The stream's next token (L) -> how many tokens to decode now (`due`). */
+  push(picked) {
+    this.tokens.copyWithin(0, picked.length);
+    this.tokens.set(picked, this.tokens.length - picked.length);
+    this.count += 1;
+    this.pending += 1;
+    return this.due();
+  }
+
+  /** Tokens to decode for the frames now ready, 0 while a chunk fills up; `final`: every pending token's frames. */
+  due(final = false) {
+    if (!this.pending || !(final || this.count === 1 || this.pending >= this.chunk)) return 0;
+    return Math.min(this.count, this.dims.receptiveField + this.pending);
+  }
+
+  /** The last n tokens (n, L), oldest first: the decoder's input for the frames due. */
+  window(n) { return this.tokens.subarray(this.tokens.length - n * this.dims.numLevels); }
+
+  /** The decoder's features for `window(n)` -> the new frames {index, features (n, D), joints (n, J, 3)}. */
+  framesFrom(features) {
+    const fresh = features.subarray(features.length - this.pending * this.dims.downsample * this.dims.featureDim);
+    const frames = { index: this.frames, features: fresh, joints: this.joints.push(fresh) };
+    this.frames += this.pending * this.dims.downsample;
+    this.pending = 0;
+    return frames;
+  }
+}
+
+/**
+ * The generation recipe for one backend and one set of settings: embeddings and seeds in; tokens, features and
+ * joints out, all at once (`run`, `timeline`) or frame by frame (`stream`).
+ *
+ * `fixedTokens` fixes the length; null lets the model end each motion, at most `maxTokens`. Without `streaming`
+ * a fixed length never picks END. With it (a bundle trained for endless streams), fixed lengths and streams run
+ * the EndlessLoop: any length, bounded context, END restarts the prompt.
+ */
+export class GenerationTask {
+  constructor({ backend, skeleton, sampling, maxTokens, fixedTokens = null, streaming = null }) {
+    Object.assign(this, { backend, skeleton, sampling, maxTokens, fixedTokens, streaming });
+  }
+
+  loop(textEmb, seeds) {
+    if (this.streaming === null) {
+      throw new Error("this bundle was not trained for endless streams (its manifest has no 'streaming' section): "
+        + 're-export it from checkpoints trained on data with timed captions');
+    }
+    return new EndlessLoop(this.backend, textEmb, this.sampling, seeds, this.streaming);
+  }
+
+  /** Yields {picked (B, L), alive (B)} per step; `beforeStep` (optional) is awaited before each step of a loop. */
+  async* steps(textEmb, seeds, loop = null, beforeStep = null) {
+    if (loop === null && this.streaming !== null && this.fixedTokens !== null) loop = this.loop(textEmb, seeds);
+    if (loop === null) {
+      yield* generateTokens(this.backend, textEmb, this.sampling, makeRngs(seeds), this.maxTokens, this.fixedTokens);
+      return;
+    }
+    const alive = new Uint8Array(seeds.length).fill(1);
+    for (let t = 0; this.fixedTokens === null || t < this.fixedTokens; t++) {
+      if (beforeStep) await beforeStep();
+      yield { picked: await loop.step(), alive };
+    }
+  }
+
+  /** -> one {tokens, features, joints} per prompt; `onProgress(step, limit)` after every step. */
+  async run(textEmb, seeds, onProgress = null) {
+    return this.#decoded(await this.#collect(this.steps(textEmb, seeds), seeds.length, onProgress));
+  }
+
+  #collect(steps, batch, onProgress) {
+    const limit = this.fixedTokens ?? this.maxTokens;
+    return collectTokens(onProgress ? reported(steps, onProgress, limit) : steps, batch, this.backend.dims.numLevels);
+  }
+
+  /** One character following prompt i (row i of textEmbs (N, text_dim)) from token starts[i] on (starts[0] = 0). */
+  async timeline(textEmbs, starts, seed, onProgress = null) {
+    const E = this.backend.dims.textDim, row = (i) => textEmbs.slice(i * E, (i + 1) * E);
+    const loop = this.loop(row(0), [seed]), switchAt = new Map(starts.slice(1).map((s, i) => [s, i + 1]));
+    const steps = this.steps(row(0), [seed], loop, () => {
+      if (switchAt.has(loop.count)) loop.setPrompt(row(switchAt.get(loop.count)));
+    });
+    return (await this.#decoded(await this.#collect(steps, 1, onProgress)))[0];
+  }
+
+  async #decoded(tokenSeqs) {
+    const features = await decodeTokens(this.backend, tokenSeqs), J = this.skeleton.parents.length;
+    return tokenSeqs.map((tokens, b) => ({
+      tokens, features: features[b], joints: new FootLock(this.skeleton).push(recoverFromRic(features[b], J), features[b]),
+    }));
+  }
+
+  /**
+   * One prompt's frames as its tokens are sampled, a chunk at a time: yields {index, features (n, D),
+   * joints (n, J, 3)}, n >= 1. With `loop` (an EndlessLoop of this prompt) the stream follows that loop's prompt
+   * changes; `beforeStep` is awaited before each token (a pending prompt switch lands there).
+   */
+  stream(textEmb, seed, chunk = 4, loop = null, beforeStep = null) {
+    const maker = new FrameMaker(this.backend.dims, this.skeleton, chunk);   // checks chunk now, not at the first frame
+    return this.#stream(this.steps(textEmb, [seed], loop, beforeStep), maker);
+  }
+
+  async* #stream(steps, maker) {
+    for await (const { picked, alive } of steps) {
+      if (!alive[0]) break;
+      const n = maker.push(picked);
+      if (n) yield maker.framesFrom(await this.backend.decode(maker.window(n), 1));
+    }
+    const n = maker.due(true);
+    if (n) yield maker.framesFrom(await this.backend.decode(maker.window(n), 1));
+  }
+}
+
+/** `steps`, `onProgress(step, limit)` called as each step's tokens are handed on. */
+async function* reported(steps, onProgress, limit) {
+  let t = 0;
+  for await (const item of steps) {
+    onProgress(++t, limit);
+    yield item;
+  }
+}

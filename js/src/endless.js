@@ -1,0 +1,127 @@
+// Endless streams (runtime/mogo_runtime/endless.py; docs/bundle.md, "Endless streams"): a stream never ends by
+// itself, follows a new prompt from the next token, and keeps a bounded context. Its context is its prompt's
+// prefix (BOS) plus motion tokens, rebuilt (fed from an empty cache as [BOS, kept tokens]) when:
+// - the prompt changed: nothing kept (the new prompt starts a motion as it would alone);
+// - level 0 picked END: the motion ended where a clip would end; that pick is dropped (its draws stay
+//   consumed), the prompt starts again with nothing kept, and the step picks again, END forbidden;
+// - the context holds window + refresh motion tokens: the last `window` are kept.
+// So up to its first END a stream computes exactly what generateTokens computes. endless.py says why.
+
+import { PCG64 } from './pcg64.js';
+import { StepPolicy } from './policy.js';
+
+/**
+ * One endless stream's token state: the step rows it is conditioned on, its random generator, its recent
+ * tokens, and what its next step feeds (`plan`), given the pick it then `accept`s.
+ */
+export class StreamContext {
+  constructor(policy, emb, seed, spec) {
+    this.policy = policy;
+    this.window = spec.window;
+    this.span = spec.window + spec.refresh;
+    this.rng = new PCG64(seed);
+    this.history = new Int32Array(this.span * policy.dims.numLevels);   // token t at slot t % span
+    this.last = null;       // the last token picked
+    this.count = 0;         // tokens picked
+    this.cached = 0;        // motion tokens in the context after its prefix
+    this.motion = 0;        // tokens since the motion (re)started
+    this.restarts = 0;      // motions ended by END and started again
+    this.condition(emb);
+  }
+
+  /** Follow the prompt of embedding `emb` (1, text_dim) from the next token on; nothing is kept. */
+  condition(emb) {
+    this.rowsEmb = this.policy.condition(emb);
+    this.restart = true;
+  }
+
+  /** END may be picked once the motion has a token: never as a motion's first, so never twice in a row. */
+  get mayEnd() { return this.motion >= 1; }
+
+  /**
+   * -> {tokens (S, L) the next step feeds, fresh: whether they start a new context}. A new context is BOS and
+   * the last n picked tokens: n = 0 after a new prompt or END, `window` once the context holds window + refresh;
+   * otherwise the step feeds the last pick.
+   */
+  plan() {
+    if (!(this.restart || this.cached === this.span)) {
+      this.cached += 1;
+      return { tokens: this.last, fresh: false };
+    }
+    const L = this.policy.dims.numLevels, n = this.restart ? 0 : this.window;
+    const tokens = new Int32Array((n + 1) * L).fill(this.policy.dims.bosId);
+    for (let i = 0; i < n; i++) {   // the last n, oldest first
+      const slot = (this.count - n + i) % this.span;
+      tokens.set(this.history.subarray(slot * L, (slot + 1) * L), (i + 1) * L);
+    }
+    this.cached = n;
+    this.restart = false;
+    if (n === 0) this.motion = 0;
+    return { tokens, fresh: true };
+  }
+
+  /** The step's pick (L) -> whether it is the stream's next token (END is not: the motion starts again). */
+  accept(picked) {
+    if (picked[0] === this.policy.dims.endId) {
+      this.restart = true;
+      this.restarts += 1;
+      return false;
+    }
+    this.history.set(picked, (this.count % this.span) * picked.length);
+    this.last = picked;
+    this.count += 1;
+    this.motion += 1;
+    return true;
+  }
+}
+
+/**
+ * A batch of endless streams, each stepped with its own calls (their contexts rebuild at different steps):
+ * `step()` gives every stream its next token. textEmb (B, text_dim) and seeds (BigInt): one per stream; spec:
+ * the manifest's `streaming` section.
+ */
+export class EndlessLoop {
+  constructor(backend, textEmb, sampling, seeds, spec) {
+    this.backend = backend;
+    this.policy = new StepPolicy(sampling, backend.dims);
+    this.streams = seeds.map((seed, b) => new StreamContext(this.policy, this.#row(textEmb, b, seeds.length), seed, spec));
+    this.past = seeds.map(() => null);
+  }
+
+  /** Tokens picked so far by each stream. */
+  get count() { return this.streams[0].count; }
+
+  /** Motions ended by END and started again, over all streams. */
+  get restarts() { return this.streams.reduce((n, s) => n + s.restarts, 0); }
+
+  /** (B, text_dim) embeddings to follow from the next token on. */
+  setPrompt(textEmb) {
+    this.streams.forEach((stream, b) => stream.condition(this.#row(textEmb, b, this.streams.length)));
+  }
+
+  #row(textEmb, b, batch) {
+    const E = this.backend.dims.textDim;
+    if (textEmb.length !== batch * E) throw new RangeError(`expected (${batch}, ${E}) text embeddings, got ${textEmb.length} values`);
+    return textEmb.slice(b * E, (b + 1) * E);
+  }
+
+  /** -> the next tokens (B, L) of every stream. */
+  async step() {
+    const L = this.backend.dims.numLevels, picked = new Int32Array(this.streams.length * L);
+    for (let b = 0; b < this.streams.length; b++) picked.set(await this.#step(b), b * L);
+    return picked;
+  }
+
+  async #step(b) {
+    const stream = this.streams[b], rows = this.policy.rows;
+    for (let attempt = 0; attempt < 2; attempt++) {   // a pick of END is picked again from the restarted context
+      const { tokens, fresh } = stream.plan();
+      if (fresh) this.past[b] = this.backend.emptyPast(rows);
+      const out = await this.backend.step(stream.rowsEmb, this.policy.feed(tokens, 1), rows, this.past[b]);
+      this.past[b] = out.past;
+      const picked = this.policy.pick(out.logits, [stream.mayEnd], [stream.rng]);
+      if (stream.accept(picked)) return picked;
+    }
+    throw new Error("unreachable: END is forbidden as a motion's first token");
+  }
+}
