@@ -1,12 +1,37 @@
 """Checks of values that come from outside (a user's arguments, a bundle's manifest, a rig file): numbers that must
-be real and in range, and typed reads from JSON objects that name the file and the dotted field when a value is
-wrong. Every error is a ValueError (or the subclass a caller names) with one line saying what is wrong."""
+be real and in range, files that must be regular and small, and typed reads from JSON objects that name the file and
+the dotted field when a value is wrong. Every error is a ValueError (or the subclass a caller names) with one line
+saying what is wrong."""
 from __future__ import annotations
 
+import errno
 import math
 import numbers
+import os
+import stat
 
 import numpy as np
+
+NAME_MAX = 255      # bytes of one file name on the file systems a bundle or a motion file lands on (ext4, APFS, NTFS)
+
+
+def read_file(path, most: int, links: bool = True, error: type[ValueError] = ValueError) -> bytes:
+    """The bytes of `path`, a regular file of at most `most` bytes. A device (/dev/zero), a FIFO (which would block)
+    or a folder is refused before a byte is read, and so is a link where `links` is False (a link could point at
+    any file of the machine); never more than `most` + 1 bytes are read, whatever the file's size says."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | (0 if links else getattr(os, "O_NOFOLLOW", 0)))
+    except OSError as e:
+        why = "a link, which is not allowed here" if e.errno == errno.ELOOP else f"cannot read it ({e.strerror})"
+        raise error(f"{path}: {why}") from None
+    with os.fdopen(fd, "rb") as f:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise error(f"{path}: not a regular file ({'a folder' if stat.S_ISDIR(mode) else 'a device or pipe'})")
+        data = f.read(most + 1)
+    if len(data) > most:
+        raise error(f"{path}: more than {most:,} bytes")
+    return data
 
 
 def shown(value, limit: int = 60) -> str:

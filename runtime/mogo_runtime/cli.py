@@ -33,11 +33,13 @@ from .bundle.sampling import SamplingConfig
 from .bundle.sections import GRAPHS, BundleError
 from .outputs.motion import RIG_FORMATS, SAVE_FORMATS, check_output_path
 from .outputs.rig import RIGS, load_rig
-from .text import check_texts
+from .text import MAX_PROMPT_CHARS, check_texts, load_tokenizer
 
 DEFAULT_BUNDLE = "bundles/base"
 EXIT_USAGE = 2
 JOINT_DECIMALS = 4     # metres: 0.1 mm
+MAX_MESSAGE = 1000     # characters of an error line
+MAX_LINE_BYTES = 4 * MAX_PROMPT_CHARS + 2   # a line of --follow's stdin: the longest prompt in UTF-8, and its end
 
 
 class UsageError(Exception):
@@ -152,8 +154,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _fail(message: str) -> int:
-    print(f"mogo: error: {message}", file=sys.stderr)
+    print(f"mogo: error: {one_line(message)}", file=sys.stderr)
     return EXIT_USAGE
+
+
+def one_line(message: str, most: int = MAX_MESSAGE) -> str:
+    """`message` as one line of at most `most` characters: control characters (a newline in a file name) escaped,
+    the rest cut with a note of how much, so a hostile name or prompt cannot add lines or flood the terminal."""
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
+    return text if len(text) <= most else f"{text[:most]}... ({len(text) - most:,} more characters)"
 
 
 def _load_generator(args):
@@ -252,6 +261,9 @@ def cmd_crowd(args) -> int:
     check_output_path(paths[0])
     gen = _load_generator(args)
     crowd = Crowd(gen, sampling=_sampling(args, gen.sampling_defaults))
+    if count > crowd.max_characters:      # refused before any character costs memory
+        raise UsageError(f"--characters {count}: the memory available holds {crowd.max_characters} characters of this "
+                         f"bundle ({crowd.character_bytes / 2 ** 20:.1f} MiB of step cache each)")
     start = time.perf_counter()
     members = [crowd.add(args.text[i % len(args.text)], seed=args.seed + i, seconds=args.seconds, record=True)
                for i in range(count)]
@@ -290,6 +302,8 @@ def cmd_rigs(args) -> int:
 def cmd_stream(args) -> int:
     check_texts([args.text])         # before any work: an empty prompt should not cost a bundle load
     align = _align(args)
+    if args.follow and (sys.stdin is None or sys.stdin.closed):
+        raise UsageError("--follow reads new prompts from stdin, and stdin is closed")
     prompts = _read_lines(sys.stdin) if args.follow else None    # reading starts now: nothing typed is lost
     gen = _load_generator(args)
     if args.follow and not gen.endless:
@@ -303,10 +317,8 @@ def cmd_stream(args) -> int:
     out = sys.stdout
     try:
         for f in frames:
-            while prompts is not None and not prompts.empty():
-                text = prompts.get_nowait()
-                if not text.strip():
-                    continue
+            text = _newest(prompts)
+            if text is not None:
                 with _warnings_as_lines():
                     frames.set_prompt(text, align=align)
                 event = {"event": "prompt", "token": frames.tokens, "frame": f.index, "text": text,
@@ -333,14 +345,33 @@ def _read_lines(stream) -> queue.Queue:
     lines: queue.Queue = queue.Queue()
 
     def read():
-        raw = getattr(stream, "buffer", None)
-        for line in stream if raw is None else raw:
-            if isinstance(line, bytes):
-                line = line.decode("utf-8", "surrogateescape")
-            lines.put(line.rstrip("\r\n"))     # bytes keep the "\r" of a Windows line end
+        raw = getattr(stream, "buffer", stream)
+        try:
+            while line := raw.readline(MAX_LINE_BYTES + 1):
+                if len(line) > MAX_LINE_BYTES:   # read no further: a line without end would fill the memory
+                    lines.put(UsageError(f"stdin: a line longer than {MAX_LINE_BYTES:,} bytes; a prompt has at most "
+                                         f"{MAX_PROMPT_CHARS:,} characters"))
+                    return
+                if isinstance(line, bytes):
+                    line = line.decode("utf-8", "surrogateescape")
+                lines.put(line.rstrip("\r\n"))     # bytes keep the "\r" of a Windows line end
+        except (OSError, ValueError) as e:
+            lines.put(UsageError(f"stdin: cannot read it ({e})"))
 
     threading.Thread(target=read, daemon=True).start()
     return lines
+
+
+def _newest(prompts: queue.Queue | None) -> str | None:
+    """The last non-blank line that came in since the last look, or None: a game that writes faster than the
+    stream steps gets its newest prompt followed, not a backlog of old ones."""
+    newest = None
+    while prompts is not None and not prompts.empty():
+        line = prompts.get_nowait()
+        if isinstance(line, Exception):
+            raise line
+        newest = line if line.strip() else newest
+    return newest
 
 
 def cmd_info(args) -> int:
@@ -381,6 +412,11 @@ def cmd_info(args) -> int:
         raise BundleError(f"{bundle.path}: {len(failed)} file(s) missing or not matching their size and sha256 in "
                           f"manifest.json: {', '.join(failed)} (corrupted or replaced; re-export or re-copy the "
                           f"bundle)")
+    try:   # its hash says it is the exporter's file, not that this runtime can read it
+        load_tokenizer(bundle.read_verified(te.tokenizer), str(bundle.path / te.tokenizer))
+    except ValueError as e:
+        raise BundleError(str(e)) from None
+    print(f"tokenizer  {te.tokenizer} reads (cut at {te.max_length} tokens)")
     bundle.check_graph_signatures()
     print("graphs     inputs and outputs match the manifest")
     return 0

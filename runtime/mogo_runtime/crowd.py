@@ -23,12 +23,15 @@ characters rebuilding in the same tick; every character's last token goes into o
 """
 from __future__ import annotations
 
+import os
+import threading
 from collections import deque
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .bundle.sampling import SamplingConfig, sampling_or
+from .checks import as_int
 from .decoding import FrameMaker, Frames, check_chunk
 from .endless import StreamContext
 from .engine import FixedCacheBackend
@@ -40,6 +43,20 @@ if TYPE_CHECKING:
     from .generator import MotionGenerator
 
 SWITCH_HISTORY = 10_000   # prompt switches kept per character, as FrameStream keeps them
+MEMORY_SHARE = 0.5        # of the memory available when a crowd is made, what its characters may take by default
+
+
+def available_memory() -> int:
+    """Bytes of memory available to a new allocation now (Linux: MemAvailable; elsewhere the free pages)."""
+    try:
+        with open("/proc/meminfo") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, AttributeError):
+        return 1 << 30             # nothing says: 1 GiB
 
 
 class Character:
@@ -71,11 +88,7 @@ class Character:
 
     def set_prompt(self, text: str) -> None:
         """Follow `text` from this character's next token on (frames already decoded are not changed)."""
-        if not isinstance(text, str):
-            raise ValueError(f"set_prompt() takes one prompt (str), got {type(text).__name__}")
-        self.context.condition(self.crowd.gen.backend.encode_text(check_texts([text])))
-        self.text = text
-        self.switches.append((self.count, text))
+        self.crowd.set_prompt(self, text)
 
     def motion(self) -> Motion:
         """Everything this character has done and been decoded so far, as one Motion (added with record=True)."""
@@ -96,10 +109,13 @@ class Crowd:
     """Characters that come and go, stepped together: `tick()` advances every one by a token.
 
     `sampling`: one SamplingConfig for the crowd (default the bundle's). `chunk`: tokens per decode after the
-    first, as `MotionGenerator.stream`'s.
+    first, as `MotionGenerator.stream`'s. `max_characters`: how many it may hold; default what the memory available
+    now holds (`character_bytes` each, MEMORY_SHARE of it). One thread ticks a crowd at a time; `add`, `remove` and
+    `Character.set_prompt` from other threads wait for a running tick.
     """
 
-    def __init__(self, gen: "MotionGenerator", sampling: SamplingConfig | None = None, chunk: int = 4):
+    def __init__(self, gen: "MotionGenerator", sampling: SamplingConfig | None = None, chunk: int = 4,
+                 max_characters: int | None = None):
         if not isinstance(gen.backend, FixedCacheBackend):
             raise ValueError(f"a crowd steps its characters together through the fixed-capacity step graph, and "
                              f"variant {gen.variant!r} has the growing cache (whose rows must share one length) or "
@@ -116,6 +132,12 @@ class Crowd:
         self._cache = self.backend.empty_past(0).arrays
         self._spare = self.backend.empty_past(0).arrays
         self._next_id = 0
+        self._lock = threading.Lock()
+        # a character's rows, in the crowd's cache (which grows by doubling) and in the scratch rows of a rebuild
+        self.character_bytes = 3 * self.policy.rows * sum(a[:1].nbytes for a in self.backend.empty_past(1).arrays)
+        self.max_characters = (as_int("max_characters", max_characters, "an int >= 1 or None", 1)
+                               if max_characters is not None else
+                               max(1, int(MEMORY_SHARE * available_memory() // self.character_bytes)))
 
     def __len__(self) -> int:
         return len(self.characters)
@@ -128,21 +150,42 @@ class Crowd:
         limit = self.gen.tokens_for(seconds)
         (seed,) = expand_seeds(seed, 1)
         emb = self.backend.encode_text(check_texts([text]))       # one prompt per call: padding never mixes
-        character = Character(self, self._next_id, text, emb, seed, limit, bool(record))
-        self._next_id += 1
-        rows = (len(self.characters) + 1) * self.policy.rows
-        if rows > len(self._cache[0]):          # its rows may hold a departed character's cache: finite, masked
-            grown = self.backend.empty_past(max(rows, 2 * len(self._cache[0]))).arrays
-            for new, old in zip(grown, self._cache):
-                new[:len(old)] = old
-            self._cache = grown
-        character.slot = len(self.characters)
-        self.characters.append(character)
+        with self._lock:
+            if len(self.characters) >= self.max_characters:
+                raise ValueError(f"this crowd holds at most {self.max_characters} characters (each needs "
+                                 f"{self.character_bytes / 2 ** 20:.1f} MiB of step cache); Crowd(..., "
+                                 f"max_characters=N) sets another bound")
+            character = Character(self, self._next_id, text, emb, seed, limit, bool(record))
+            self._next_id += 1
+            rows, most = (len(self.characters) + 1) * self.policy.rows, self.max_characters * self.policy.rows
+            if rows > len(self._cache[0]):      # its rows may hold a departed character's cache: finite, masked
+                grown = self.backend.empty_past(max(rows, min(2 * len(self._cache[0]), most))).arrays
+                for new, old in zip(grown, self._cache):
+                    new[:len(old)] = old
+                self._cache = grown
+            character.slot = len(self.characters)
+            self.characters.append(character)
         return character
+
+    def set_prompt(self, character: Character, text: str) -> None:
+        """`character` follows `text` from its next token on. From another thread while a tick runs, this waits for
+        that tick: the switch lands at the character's next token either way."""
+        if not isinstance(text, str):
+            raise ValueError(f"set_prompt() takes one prompt (str), got {type(text).__name__}")
+        emb = self.backend.encode_text(check_texts([text]))
+        with self._lock:
+            self._slot(character)                        # a character removed from its crowd moves no more
+            character.context.condition(emb)
+            character.text = text
+            character.switches.append((character.count, text))
 
     def remove(self, character: Character) -> None:
         """Take a character out; its frames not yet decoded are dropped (as closing a stream drops them). The last
         character moves into its rows."""
+        with self._lock:
+            self._remove(character)
+
+    def _remove(self, character: Character) -> None:
         slot, per = self._slot(character), self.policy.rows
         last = self.characters.pop()
         if last is not character:
@@ -164,6 +207,14 @@ class Crowd:
     def tick(self) -> dict[Character, Frames]:
         """Every character one token further; -> the frames each character got this tick (decoded `chunk`
         tokens at a time). Characters whose `seconds` are done get their last frames and leave."""
+        if not self._lock.acquire(blocking=False):
+            raise RuntimeError("Crowd.tick() is running in another thread: one thread ticks a crowd at a time")
+        try:
+            return self._tick()
+        finally:
+            self._lock.release()
+
+    def _tick(self) -> dict[Character, Frames]:
         if not self.characters:
             return {}
         chars = list(self.characters)
@@ -174,7 +225,7 @@ class Crowd:
                 c.context.accept(p)
         out = self._decode()
         for c in [c for c in self.characters if c.done]:
-            self.remove(c)
+            self._remove(c)
         return out
 
     def _pick(self, chars: list[Character], plans: list[tuple[np.ndarray, bool]]) -> np.ndarray:

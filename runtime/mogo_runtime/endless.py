@@ -18,6 +18,8 @@ any backend) or a crowd (every character's step in one call, crowd.py).
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from .bundle.sections import StreamingSpec
@@ -86,6 +88,7 @@ class EndlessLoop:
         self.backend, self.policy, self.clock = backend, StepPolicy(sampling, backend.dims), clock or NO_CLOCK
         self.streams = [StreamContext(self.policy, e[None], s, spec) for e, s in zip(text_emb, seeds)]
         self.past: list = [None] * len(self.streams)
+        self._lock = threading.Lock()     # a step and a prompt switch never interleave
 
     @property
     def count(self) -> int:
@@ -97,17 +100,21 @@ class EndlessLoop:
         """Motions ended by END and started again, over all streams."""
         return sum(s.restarts for s in self.streams)
 
-    def set_prompt(self, text_emb: np.ndarray) -> None:
-        """(B, text_dim) embeddings to follow from the next token on."""
+    def set_prompt(self, text_emb: np.ndarray) -> int:
+        """(B, text_dim) embeddings to follow from the next token on; -> that token's index. Called from another
+        thread while a step runs, it waits for the step: the switch lands at the next token either way."""
         if text_emb.shape != (len(self.streams), self.backend.dims.text_dim):
             raise ValueError(f"expected ({len(self.streams)}, {self.backend.dims.text_dim}) text embeddings, got "
                              f"{text_emb.shape}")
-        for stream, emb in zip(self.streams, text_emb):
-            stream.condition(emb[None])
+        with self._lock:
+            for stream, emb in zip(self.streams, text_emb):
+                stream.condition(emb[None])
+            return self.count
 
     def step(self) -> np.ndarray:
         """-> the next tokens (B, L) of every stream."""
-        return np.stack([self._step(b, s) for b, s in enumerate(self.streams)])
+        with self._lock:
+            return np.stack([self._step(b, s) for b, s in enumerate(self.streams)])
 
     def _step(self, b: int, stream: StreamContext) -> np.ndarray:
         for _ in range(2):             # a pick of END is picked again from the restarted context, END forbidden

@@ -17,6 +17,7 @@ import numpy as np
 
 from .bundle.folder import Bundle
 from .bundle.sections import GRAPHS, BundleError, ModelDims
+from .checks import shown
 from .text import TextEncoderSession, check_threads, session_options
 
 
@@ -69,8 +70,11 @@ class OrtBackend:
 
     def encode_text(self, texts: list[str]) -> np.ndarray:
         if "text_encoder" in self.one_row:
-            return np.concatenate([self._finite("text_encoder", self.text.encode([t])) for t in texts])
-        return self._finite("text_encoder", self.text.encode(texts))           # (B, text_dim)
+            return np.concatenate([self._encode([t]) for t in texts])
+        return self._encode(texts)
+
+    def _encode(self, texts: list[str]) -> np.ndarray:
+        return self._finite("text_encoder", self._run("text_encoder", self.text.encode, texts))   # (B, text_dim)
 
     def empty_past(self, rows: int) -> list:
         empty = [np.zeros((1 if "step" in self.one_row else rows, self.cache_heads, 0, self.dims.head_dim),
@@ -87,7 +91,17 @@ class OrtBackend:
     def _step(self, text_emb: np.ndarray, tokens: np.ndarray, past: list[np.ndarray]):
         feed = {"text_embedding": np.ascontiguousarray(text_emb, dtype=np.float32),
                 "tokens": np.ascontiguousarray(tokens, dtype=np.int64), **dict(zip(self.past_names, past))}
-        out = self.step_session.run(self.output_names, feed)
+        out = self._run("step", self.step_session.run, self.output_names, feed)
+        (rows, steps), d = tokens.shape[:2], self.dims
+        # what the graph returns is held to the manifest every step: a cache that grew by more than the steps fed (or
+        # logits of another width) would be read wrongly, or fill the memory over minutes. The loop reads the last
+        # position's logits: a graph may return only those.
+        cache, logits = (rows, self.cache_heads, past[0].shape[2] + steps, d.head_dim), out[0].shape
+        if (logits[0], *logits[2:]) != (rows, d.num_levels, d.codebook_size + 1) or not 1 <= logits[1] <= steps \
+                or any(p.shape != cache for p in out[1:]):
+            raise BundleError(f"{self.bundle.graph_path('step', self.variant)}: returned logits {logits} and a cache "
+                              f"{out[1].shape} for {steps} step(s) after {past[0].shape[2]}; the manifest's model says "
+                              f"{(rows, steps, d.num_levels, d.codebook_size + 1)} and {cache}")
         return self._finite("step", out[0]), out[1:]                            # logits (B, S, L, K + 1), presents
 
     def decode(self, tokens: np.ndarray) -> np.ndarray:
@@ -98,17 +112,29 @@ class OrtBackend:
 
     def lookup(self, tokens: np.ndarray) -> np.ndarray:
         """The codebook lookup alone: (B, T, L) tokens -> the decoder's input (B, T, latent_dim)."""
-        (latent,) = self.lookup_session.run(["latent"], {"tokens": np.ascontiguousarray(tokens, dtype=np.int64)})
+        (latent,) = self._run("lookup", self.lookup_session.run, ["latent"],
+                              {"tokens": np.ascontiguousarray(tokens, dtype=np.int64)})
         return self._finite("lookup", latent)
 
     def _decode(self, tokens: np.ndarray) -> np.ndarray:
-        (features,) = self.decoder_session.run(["features"], {"latent": self.lookup(tokens)})
+        (features,) = self._run("decoder", self.decoder_session.run, ["features"], {"latent": self.lookup(tokens)})
         want = (len(tokens), tokens.shape[1] * self.dims.downsample, self.dims.feature_dim)
         if features.shape != want:   # a wrong model.downsample would otherwise drop or invent frames silently
             raise BundleError(f"{self.bundle.graph_path('decoder', self.variant)}: decoded {tokens.shape[1]} tokens "
                               f"to {features.shape[1:]} frames x features; manifest model.downsample "
                               f"{self.dims.downsample} and model.feature_dim {self.dims.feature_dim} promise {want[1:]}")
         return self._finite("decoder", features)                                # (B, T * downsample, D)
+
+    def _run(self, graph: str, run, *args):
+        """`run(*args)` of `graph`'s session; onnxruntime refusing to finish it (an output it cannot allocate, shapes
+        that do not fit) is a BundleError naming the graph, as the bundle's graphs are what is wrong."""
+        try:
+            return run(*args)
+        except Exception as e:      # onnxruntime's own error types (Fail, InvalidArgument, ...); anything else is ours
+            if type(e).__module__ != "onnxruntime.capi.onnxruntime_pybind11_state":
+                raise
+            raise BundleError(f"{self.bundle.graph_path(graph, self.variant)}: onnxruntime could not run the {graph} "
+                              f"graph ({shown(str(e), 300)}); the bundle is broken") from None
 
     def _finite(self, graph: str, out: np.ndarray) -> np.ndarray:
         """`out`, or NonFiniteOutput naming the graph: NaN or inf must never reach a motion, a file or a stream
@@ -181,5 +207,5 @@ class FixedCacheBackend(OrtBackend):
                                  f"{array.dtype} {array.shape}")
             binding.bind_cpu_input(past, array)
             binding.bind_output(present, "cpu", 0, np.float32, list(array.shape), array.ctypes.data)
-        self.step_session.run_with_iobinding(binding)
+        self._run("step", self.step_session.run_with_iobinding, binding)
         return self._finite("step", logits)

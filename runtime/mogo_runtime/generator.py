@@ -25,7 +25,7 @@ import numpy as np
 
 from .bundle.folder import Bundle
 from .bundle.sampling import SamplingConfig, sampling_or
-from .checks import as_real
+from .checks import as_real, shown
 from .clock import NO_CLOCK, StageClock
 from .decoding import Frames, Generated, GenerationTask
 from .engine import open_backend
@@ -63,6 +63,7 @@ class FrameStream:
         self.text, self.aligned_text, self._condition = text, aligned_text, condition
         self._loop = task.loop(emb, [seed]) if task.streaming is not None else None
         self._frames = _frames(task.stream(emb, seed, chunk, self._loop), task.backend.dims.fps)
+        self._closed = False
         # (token, text, aligned text) of the last SWITCH_HISTORY set_prompt calls: a stream runs for days
         self.switches: deque[tuple[int, str, str | None]] = deque(maxlen=SWITCH_HISTORY)
 
@@ -70,7 +71,11 @@ class FrameStream:
         return self
 
     def __next__(self) -> Frame:
-        return next(self._frames)
+        try:
+            return next(self._frames)
+        except StopIteration:
+            self._closed = True
+            raise
 
     @property
     def tokens(self) -> int:
@@ -83,18 +88,22 @@ class FrameStream:
         return self._loop.restarts if self._loop is not None else 0
 
     def set_prompt(self, text: str, align: bool | Aligner = False) -> None:
-        """Follow `text` from the next token on (the frames already decoded are not changed)."""
+        """Follow `text` from the next token on (the frames already decoded are not changed). Safe from another
+        thread: a switch asked for while a step runs lands at the token after it."""
         if self._loop is None:
             raise ValueError("this bundle was not trained for endless streams (its manifest has no 'streaming' "
                              "section), so its streams cannot change prompt")
+        if self._closed:
+            raise ValueError("this stream is closed (close(), or its motion ended): it follows no more prompts")
         if not isinstance(text, str):
             raise ValueError(f"set_prompt() takes one prompt (str), got {type(text).__name__}")
         emb, aligned = self._condition(check_texts([text]), align)
-        self._loop.set_prompt(emb)
+        token = self._loop.set_prompt(emb)
         self.text, self.aligned_text = text, aligned[0]
-        self.switches.append((self._loop.count, text, aligned[0]))
+        self.switches.append((token, text, aligned[0]))
 
     def close(self) -> None:
+        self._closed = True
         self._frames.close()
 
 
@@ -115,7 +124,7 @@ class MotionGenerator:
                  aligner: Aligner | None = None):
         # Only the chosen variant's files are read, each hashed once as it is read (Bundle.load).
         if not isinstance(variant, str) or not variant:
-            raise ValueError(f"variant must be a variant name such as 'fp32', 'int8' or 'portable', got {variant!r}")
+            raise ValueError(f"variant must be a variant name such as 'fp32', 'int8' or 'portable', got {shown(variant)}")
         check_threads(threads)     # before the bundle is read and hashed
         self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle, variant)
         self.backend = open_backend(self.bundle, variant, threads)
@@ -178,10 +187,13 @@ class MotionGenerator:
             raise ValueError("a timeline is a list of (prompt, start_seconds) pairs")
         texts = check_texts([t for t, _ in timeline])
         total = self.tokens_for(seconds)
-        starts = [self.tokens_for(t) if t else 0 for _, t in timeline] if timeline[0][1] == 0 else None
-        if starts is None or any(b <= a for a, b in zip(starts, starts[1:])) or starts[-1] >= total:
+        try:
+            starts = [self.tokens_for(t) if t else 0 for _, t in timeline]
+        except ValueError as e:
+            raise ValueError(f"a timeline start: {e}".replace("seconds must be", "it must be", 1)) from None
+        if timeline[0][1] != 0 or any(b <= a for a, b in zip(starts, starts[1:])) or starts[-1] >= total:
             raise ValueError(f"timeline starts must begin at 0 and increase, each before the end ({seconds} s); got "
-                             f"{[t for _, t in timeline]}")
+                             f"{shown([t for _, t in timeline], 200)}")
         task, emb, seeds, aligned = self._prepare(texts, seconds, [expand_seeds(seed, 1)[0]] * len(texts),
                                                   sampling, align, clock)
         r = task.timeline(emb, starts, seeds[0], progress)
@@ -237,7 +249,7 @@ class MotionGenerator:
 
         aligner = self.aligner if align is True else align
         if not isinstance(aligner, Aligner):
-            raise ValueError(f"align must be True, False or a mogo_runtime.tca.Aligner, got {align!r}")
+            raise ValueError(f"align must be True, False or a mogo_runtime.tca.Aligner, got {shown(align)}")
         return aligner.align_batch(texts)
 
     def tokens_for(self, seconds: float | None) -> int | None:

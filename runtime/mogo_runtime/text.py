@@ -12,19 +12,27 @@ reads them back from that file. So training, export and runtime cut and pad prom
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from tokenizers import Tokenizer
 
-from .checks import as_int
+from .checks import as_int, shown
 
 # The encoder reads a prompt's first max_length tokens (a few hundred words) and drops the rest, but the tokenizer
 # and the aligner work on all of it first: a 10 MB prompt took 36 s and 5 GB before being cut (CJK text, one token
 # a character). 10,000 characters is many times what any bundle reads.
 MAX_PROMPT_CHARS = 10_000
 MAX_THREADS = 64   # onnxruntime segfaults or hangs on absurd thread counts; no CPU this runs on has more cores
+# The tokenizer.json parts both runtimes implement (js/src/tokenizer.js follows them rule for rule). Others are refused
+# before the tokenizers library loads the file: a Replace normalizer that turns a character into 200,000 made a
+# 10,000-character prompt abort the process (the library allocating without bound).
+TOKENIZER_PARTS = {"normalizer": {"BertNormalizer", "Lowercase", "StripAccents", "NFC", "NFD", "NFKC", "NFKD",
+                                  "Sequence"},
+                   "pre_tokenizer": {"BertPreTokenizer", "Whitespace", "WhitespaceSplit", "Sequence"},
+                   "model": {"WordPiece", "WordLevel"}}
 
 
 @dataclass(frozen=True)
@@ -41,11 +49,11 @@ class TokenizerSettings:
                              f"positions. Re-export the text encoder (it writes truncation into tokenizer.json)")
         if pad is None or pad.get("length") is not None:
             # a fixed length (the shipped MiniLM file pads to 128) wastes compute; none breaks batching
-            raise ValueError(f"{source}: padding must be 'longest in batch', found {pad!r}; "
+            raise ValueError(f"{source}: padding must be 'longest in batch', found {shown(pad, 200)}; "
                              f"re-export the text encoder")
         if trunc.get("direction", "right") != "right" or pad.get("direction", "right") != "right":
             raise ValueError(f"{source}: truncation and padding must both be on the right, "
-                             f"found {trunc!r} / {pad!r}")
+                             f"found {shown(trunc, 200)} / {shown(pad, 200)}")
         return cls(max_length=int(trunc["max_length"]), pad_token=str(pad["pad_token"]))
 
 
@@ -53,9 +61,36 @@ def configure_tokenizer(tok: Tokenizer, settings: TokenizerSettings) -> Tokenize
     """Apply `settings` to `tok` in place (and return it); the one place truncation and padding are set."""
     pad_id = tok.token_to_id(settings.pad_token)
     if pad_id is None:
-        raise ValueError(f"pad token {settings.pad_token!r} is not in the tokenizer's vocabulary")
+        raise ValueError(f"pad token {shown(settings.pad_token)} is not in the tokenizer's vocabulary")
     tok.enable_truncation(max_length=settings.max_length, strategy="longest_first", direction="right")
     tok.enable_padding(direction="right", pad_id=pad_id, pad_type_id=0, pad_token=settings.pad_token, length=None)
+    return tok
+
+
+def load_tokenizer(data: bytes, name: str) -> Tokenizer:
+    """A tokenizer.json's bytes -> the Tokenizer, with its settings checked (TokenizerSettings.from_tokenizer); a
+    file that is not one, or uses parts outside TOKENIZER_PARTS, is a ValueError naming `name`."""
+    try:
+        spec = json.loads(data)
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+        raise ValueError(f"{name}: not a tokenizer.json ({type(e).__name__})") from None
+    parts = [(key, spec.get(key)) for key in TOKENIZER_PARTS] if isinstance(spec, dict) else []
+    while parts:
+        key, part = parts.pop()
+        if part is None and key != "model":
+            continue
+        kind = part.get("type") if isinstance(part, dict) else None
+        if not isinstance(kind, str) or kind not in TOKENIZER_PARTS[key]:
+            raise ValueError(f"{name}: {key} {shown(kind)} is not one this runtime reads (it reads "
+                             f"{', '.join(sorted(TOKENIZER_PARTS[key]))})")
+        if kind == "Sequence":
+            inner = part.get("normalizers" if key == "normalizer" else "pretokenizers")
+            parts += [(key, p) for p in inner] if isinstance(inner, list) else [(key, False)]
+    try:
+        tok = Tokenizer.from_str(data.decode("utf-8"))
+    except Exception as e:   # noqa: BLE001 - the library raises a bare Exception for a file it cannot parse
+        raise ValueError(f"{name}: not a tokenizer the tokenizers library can read ({shown(str(e), 200)})") from None
+    TokenizerSettings.from_tokenizer(tok, source=name)
     return tok
 
 
@@ -75,7 +110,7 @@ def check_texts(texts: list[str]) -> list[str]:
             raise ValueError(f"prompt {i} has {len(t):,} characters; a prompt may have at most {MAX_PROMPT_CHARS:,} "
                              f"(the text encoder reads only its first few hundred words)")
         if not t.strip():
-            raise ValueError(f"prompt {i} is empty or whitespace only ({t!r}); describe a motion, "
+            raise ValueError(f"prompt {i} is empty or whitespace only ({shown(t)}); describe a motion, "
                              f"e.g. 'a person walks forward'")
         try:
             t.encode("utf-8")
@@ -109,6 +144,7 @@ def session_options(threads: int):
     opts.inter_op_num_threads = 1
     opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    opts.log_severity_level = 3    # onnxruntime's own warning lines would run into the one-line errors of `mogo`
     if threads > 1:
         # spinning workers fight the host's own threads for the cores: 2 spinning threads measured 2-3x slower
         # than 1 thread on a busy 2-core machine, and 52% slower than 2 threads without spinning
@@ -127,13 +163,8 @@ class TextEncoderSession:
         import onnxruntime as ort  # imported here so `tokenize` works without onnxruntime
 
         onnx_name, tokenizer_name = names or (str(onnx_path), str(tokenizer_path))
-        try:
-            if isinstance(tokenizer_path, bytes):
-                self.tokenizer = Tokenizer.from_str(tokenizer_path.decode("utf-8"))
-            else:
-                self.tokenizer = Tokenizer.from_file(str(tokenizer_path))
-        except Exception as e:   # noqa: BLE001 - the library raises a bare Exception for a file it cannot parse
-            raise ValueError(f"{tokenizer_name}: not a tokenizer the tokenizers library can read ({e})") from None
+        data = tokenizer_path if isinstance(tokenizer_path, bytes) else Path(tokenizer_path).read_bytes()
+        self.tokenizer = load_tokenizer(data, tokenizer_name)
         self.settings = TokenizerSettings.from_tokenizer(self.tokenizer, source=tokenizer_name)
         options = session_options(threads)
         try:

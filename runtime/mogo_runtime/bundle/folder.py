@@ -17,6 +17,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..checks import read_file
 from .manifest import Manifest
 from .onnxfile import ProtobufError, external_data
 from .sections import DTYPES, GRAPHS, BundleError, ModelDims
@@ -39,12 +40,10 @@ def read_manifest(folder: str | Path) -> Manifest:
     mpath = path / "manifest.json"
     if not path.is_dir():
         raise BundleError(f"{path}: bundle folder not found")
-    if not mpath.is_file():
+    if not (mpath.exists() or mpath.is_symlink()):
         raise BundleError(f"{mpath}: manifest missing (not a mogo bundle, or an export that did not finish)")
-    if mpath.stat().st_size > MANIFEST_MAX_BYTES:
-        raise BundleError(f"{mpath}: {mpath.stat().st_size} bytes, more than a manifest can be")
     try:
-        data = json.loads(mpath.read_bytes())
+        data = json.loads(read_file(mpath, MANIFEST_MAX_BYTES, links=False, error=BundleError))
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
         raise BundleError(f"{mpath}: not valid JSON ({type(e).__name__}: {e})") from None
     return Manifest.parse(data, str(mpath))
@@ -93,8 +92,7 @@ class Bundle:
         are the bytes checked); an ONNX graph must also be self-contained (no external data)."""
         size, digest = self.manifest.files[name]
         fpath = self._listed_path(name)
-        with open(fpath, "rb") as f:
-            data = f.read(size + 1)
+        data = read_file(fpath, size, links=False, error=BundleError)      # a link swapped in since is refused
         if len(data) != size:                      # the size was checked a moment ago: the file is being changed
             raise BundleError(f"{fpath}: size {len(data)} bytes when read, manifest says {size}")
         if hashlib.sha256(data).hexdigest() != digest:
@@ -136,6 +134,7 @@ class Bundle:
 
         opts = ort.SessionOptions()
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+        opts.log_severity_level = 3    # our own errors name the file; onnxruntime's warnings would only add lines
         seen: set[str] = set()
         for variant in variants or self.variants:
             for graph in GRAPHS:

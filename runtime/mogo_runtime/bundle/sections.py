@@ -8,7 +8,7 @@ import re
 from dataclasses import asdict, dataclass, fields
 from pathlib import PurePosixPath
 
-from ..checks import Fields, kind
+from ..checks import NAME_MAX, Fields, kind, shown
 from .sampling import SamplingConfig
 
 GRAPHS = ("text_encoder", "step", "lookup", "decoder")
@@ -323,6 +323,8 @@ def parse_files(f: Fields) -> dict[str, tuple[int, str]]:
         # bundle files are plain names inside the bundle folder: no directories, no way out of it
         if not name or p.name != name or name in (".", "..") or "\\" in name or "\0" in name:
             f.fail(name, "a bundle file must be a plain file name inside the bundle folder")
+        if len(name.encode("utf-8", "surrogatepass")) > NAME_MAX:
+            f.fail(shown(name), f"a file name of more than {NAME_MAX} bytes (no file system takes it)")
         digest = entry.str("sha256")
         if not _SHA256.fullmatch(digest):
             entry.fail("sha256", f"expected 64 lowercase hex digits, got {digest!r}")

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..checks import NAME_MAX, shown
 from ..kinematics.skeleton import Skeleton
 from .files import OutputError, write_atomic
 
@@ -93,6 +94,9 @@ def check_output_path(path: str | Path) -> str:
     """
     path = Path(path)
     suffix = path.suffix.lower()
+    if len(path.name.encode("utf-8", "surrogateescape")) > NAME_MAX:
+        raise OutputError(f"{shown(str(path), 120)}: a file name of more than {NAME_MAX} bytes (no file system takes "
+                          f"it)")
     if suffix not in SAVE_FORMATS:
         raise ValueError(f"{path}: unknown output format {path.suffix or '(no extension)'!r}; "
                          f"supported: {', '.join(SAVE_FORMATS)}")

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checks import Fields, kind
+from ..checks import Fields, kind, read_file, shown
 from ..kinematics.quaternion import unit
 from ..kinematics.skeleton import HUMANML3D, children_of, depth_first, is_ancestor, rest_positions
 from .ik import min_rotation
@@ -33,9 +33,10 @@ BONE_AXES = {"none": None, "x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0
 MAX_BONES = 1024
 MAX_FILE_BYTES = 1 << 20
 FOOT_HEIGHT = 0.05   # metres from the floor to HumanML3D's ankle and toe joints at rest
-# The bones a retarget cannot do without: the root (hips) and both legs (the target's leg length scales the path).
-REQUIRED_SOURCES = ("pelvis", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle")
 FOOT_SOURCES = ("left_ankle", "right_ankle", "left_foot", "right_foot")
+# The bones a retarget cannot do without: the root (hips), both legs (the target's leg length scales the path) and
+# both feet (ankles and toes: the lowest stands on the floor, a planted toe is held).
+REQUIRED_SOURCES = ("pelvis", "left_hip", "right_hip", "left_knee", "right_knee", *FOOT_SOURCES)
 
 
 class RigError(ValueError):
@@ -132,7 +133,7 @@ class Rig:
     @cached_property
     def floor_height(self) -> float:
         """Rest height of the lowest foot bone (ankle or toe): where it sits when a foot stands on the floor."""
-        return float(min(self.heads[self.bone(s), 1] for s in FOOT_SOURCES if _has(self, s)))
+        return float(min(self.heads[self.bone(s), 1] for s in FOOT_SOURCES))
 
     def to_dict(self) -> dict:
         return {"format": RIG_FORMAT, "name": self.name, "description": self.description, "rest_pose": self.rest_pose,
@@ -157,15 +158,10 @@ def load_rig(rig: "str | Path | Rig") -> Rig:
         path = Path(text)
     else:
         raise RigError(f"unknown rig {text!r}: give one of {', '.join(RIGS)} or a rig file ending in .json")
-    try:
-        size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise RigError(f"{path}: {size} bytes; a rig file is at most {MAX_FILE_BYTES} bytes")
-        data = json.loads(path.read_bytes())
-    except OSError as e:
-        raise RigError(f"{path}: cannot read the rig file ({e.strerror or e})") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise RigError(f"{path}: not a JSON rig file ({e})") from None
+    try:        # a rig file is a user's: a link to it is fine, a device, a pipe or a huge file is not
+        data = json.loads(read_file(path, MAX_FILE_BYTES, error=RigError))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+        raise RigError(f"{path}: not a JSON rig file ({type(e).__name__}: {shown(str(e), 200)})") from None
     return rig_from_dict(data, str(path))
 
 
@@ -189,7 +185,7 @@ def rig_from_dict(data, where: str = "rig") -> Rig:
     if f.get("format") != RIG_FORMAT:
         f.fail("format", f"expected {RIG_FORMAT!r}, got {f.get('format')!r}")
     bone_axis = f.get("bone_axis", "none")
-    if bone_axis not in BONE_AXES:
+    if not isinstance(bone_axis, str) or bone_axis not in BONE_AXES:
         f.fail("bone_axis", f"expected one of {', '.join(map(repr, BONE_AXES))}, got {bone_axis!r}")
     rest_pose = f.str("rest_pose", "T")
     bones = f.list("bones")
@@ -216,7 +212,7 @@ def rig_from_dict(data, where: str = "rig") -> Rig:
                 isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= 100 for v in head)):
             bf.fail("head", f"expected [x, y, z] in metres (|v| <= 100), got {head!r}")
         source = bf.get("source", None)
-        if source is not None and source not in joint_index:
+        if source is not None and (not isinstance(source, str) or source not in joint_index):
             bf.fail("source", f"{source!r} is not a HumanML3D joint; known: {', '.join(HUMANML3D.joint_names)}")
         if source is not None and joint_index[source] in sources:
             bf.fail("source", f"{source!r} is followed by bone {names[sources.index(joint_index[source])]!r} too")
@@ -227,7 +223,8 @@ def rig_from_dict(data, where: str = "rig") -> Rig:
         f.fail("bones", "no root: exactly one bone must have parent null")
     missing = [s for s in REQUIRED_SOURCES if joint_index[s] not in sources]
     if missing:
-        f.fail("bones", f"no bone follows {', '.join(missing)}: a rig needs the hips and both legs")
+        f.fail("bones", f"no bone follows {', '.join(missing)}: a rig needs the hips, both legs and both feet "
+                        f"(ankles and toes)")
     root_motion = f.get("root_motion_bone", None)
     description = f.get("description", "")
     if not isinstance(description, str):
@@ -267,7 +264,3 @@ def _check_tree(rig: Rig, f: Fields) -> None:
         if a >= 0 and np.linalg.norm(rig.heads[b] - rig.heads[a]) < 1e-4:
             f.fail(f"bones[{b}].head", f"bone {rig.bone_names[b]!r} sits on {rig.bone_names[a]!r}: the bone between "
                                        f"them has no length, so it has no direction to follow")
-
-
-def _has(rig: Rig, source: str) -> bool:
-    return HUMANML3D.joint_names.index(source) in rig.sources
