@@ -63,8 +63,9 @@ web: $(WEB_NPM)
 test-web: $(STAMP)
 	bash web/test/run.sh
 
-# Hostile input, 10,000 seeded cases (corrupt bundles, API calls, command lines), every open() traced: counts by
-# outcome, exit 1 on any crash, hang, traceback, non-finite output or read outside the bundle. CASES=, SEED= to vary.
+# Hostile input, 10,000 seeded cases (corrupt bundles, API calls, command lines, rig files, --follow stdin), every
+# open() traced: counts by outcome, exit 1 on any crash, hang, traceback, non-finite output or read outside the
+# bundle. CASES=, SEED= to vary.
 CASES ?= 10000
 SEED ?= 0
 .PHONY: fuzz

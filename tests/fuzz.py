@@ -1,5 +1,6 @@
-"""The fuzz suite: seeded random calls of the public API (`generate`, `stream`), the `mogo` command line and
-`Bundle.load` on corrupt bundles, each in a worker process with a time bound, sorted by outcome.
+"""The fuzz suite: seeded random calls of the public API (`generate`, `stream`), the `mogo` command line, hostile
+rig files (`--rig FILE`, `Motion.save(..., rig=FILE)`), hostile stdin of `mogo stream --follow`, and `Bundle.load`
+on corrupt bundles, each in a worker process with a time bound, sorted by outcome.
 
     python tests/fuzz.py --cases 10000 [--seed 0] [--strace]     # `make fuzz`
     python tests/fuzz.py --cases 300                              # what tests/runtime/test_fuzz.py runs in CI
@@ -102,6 +103,65 @@ def cli_case(rng) -> dict:
     return {"kind": "cli", "argv": argv}
 
 
+def rig_case(rng) -> dict:
+    """A rig file a user could hand `--rig`: a shipped rig with a field broken, or a file that is no rig at all."""
+    how = _pick(rng, ["leaf", "leaf", "delete", "nesting", "huge", "binary", "device", "fifo", "empty"])
+    return {"kind": "rig", "how": how, "rig": _pick(rng, ["mixamo", "ue5", "unity", "vrm"]),
+            "state": int(rng.integers(2 ** 63))}
+
+
+def stdin_case(rng) -> dict:
+    """`mogo stream --follow` with what a game (or a broken pipe) might write to its stdin."""
+    lines = [_pick(rng, TEXTS[:14]) for _ in range(rng.integers(0, 5))]
+    how = _pick(rng, ["lines", "lines", "flood", "no newline", "huge line", "binary", "closed", "crlf", "json"])
+    return {"kind": "stdin", "how": how, "lines": [t if isinstance(t, str) else str(t) for t in lines],
+            "size": int(rng.integers(1, 200_000))}
+
+
+def _rig_file(case: dict, out: Path) -> Path:
+    from mogo_runtime.outputs.rig import load_rig
+    import corrupt
+    path, rng = out / "rig.json", np.random.default_rng(case["state"])
+    data = load_rig(case["rig"]).to_dict()
+    how = case["how"]
+    if how in ("leaf", "delete"):
+        paths = [p for p, _ in corrupt.leaves(data) if p]
+        at = paths[rng.integers(len(paths))]
+        pool = [None, True, 0, -1, 1e308, float("nan"), "", "x" * 10_000, ["x"], {}, [[[]]], "pelvis", "mixamorig:Hips"]
+        corrupt.delete_at(data, at) if how == "delete" else corrupt.set_at(data, at, pool[rng.integers(len(pool))])
+        path.write_text(json.dumps(data))
+    elif how == "nesting":
+        path.write_text("[" * int(rng.integers(1000, 400_000)))
+    elif how == "huge":
+        path.write_bytes(b" " * (2 << 20) + json.dumps(data).encode())
+    elif how == "binary":
+        path.write_bytes(os.urandom(int(rng.integers(1, 5000))))
+    elif how == "device":
+        path.symlink_to("/dev/zero")
+    elif how == "fifo":
+        os.mkfifo(path)
+    else:
+        path.write_bytes(b"")
+    return path
+
+
+def _stdin_bytes(case: dict) -> bytes | None:
+    how, lines = case["how"], case["lines"]
+    if how == "closed":
+        return None
+    if how == "flood":
+        return "".join(f"a person walks {i}\n" for i in range(case["size"] // 10)).encode()
+    if how == "no newline":
+        return b"\0" * (case["size"] * 5)
+    if how == "huge line":
+        return ("a person walks " * (case["size"] // 5) + "\n").encode()
+    if how == "binary":
+        return os.urandom(case["size"])
+    end = "\r\n" if how == "crlf" else "\n"
+    body = [json.dumps({"prompt": t}) for t in lines] if how == "json" else lines
+    return "".join(t + end for t in body).encode("utf-8", "surrogateescape")
+
+
 # ----------------------------------------------------------------------------------------------- the worker
 
 def _run_api(case: dict, bundle: Path) -> tuple[str, str]:
@@ -123,7 +183,14 @@ def _run_api(case: dict, bundle: Path) -> tuple[str, str]:
     return "ok", ""
 
 
-def _run_cli(case: dict, bundle: Path, out: Path) -> tuple[str, str]:
+def _run_rig(case: dict, bundle: Path, out: Path) -> tuple[str, str]:
+    """The rig through the command (`generate --rig`), as a user hands it over: refused in one line, or written."""
+    rig = _rig_file(case, out)
+    return _run_cli({"argv": ["generate", "a person walks forward", "--seconds", "1", "-o", "OUT/x.glb", "-o",
+                              "OUT/x.bvh", "--rig", str(rig)]}, bundle, out)
+
+
+def _run_cli(case: dict, bundle: Path, out: Path, stdin: bytes | None = b"") -> tuple[str, str]:
     from mogo_runtime.cli import main
     argv = [a.replace("OUT/", f"{out}/") for a in case["argv"]]
     if argv[0] in ("generate", "stream") and "--bundle" not in argv:
@@ -133,7 +200,8 @@ def _run_cli(case: dict, bundle: Path, out: Path) -> tuple[str, str]:
     if argv[0] == "stream" and "--seconds" not in argv:
         argv += ["--seconds", "1"]
     err, sink = io.StringIO(), io.StringIO()
-    stdin, sys.stdin = sys.stdin, io.StringIO()     # `stream --follow` reads prompts from stdin: the cases' pipe
+    # `stream --follow` reads prompts from stdin: the case's bytes, or none at all (a closed stdin is None)
+    stdin, sys.stdin = sys.stdin, None if stdin is None else io.TextIOWrapper(io.BytesIO(stdin))
     try:
         with redirect_stderr(err), redirect_stdout(sink):
             code = main(argv)
@@ -176,9 +244,20 @@ def worker(good: Path, work: Path) -> None:
             result, detail = _run_bundle(case, good, work)
         else:
             corrupt._AUDIT = corrupt._AUDIT or corrupt._OutsideReads()
-            corrupt._AUDIT.allowed, corrupt._AUDIT.seen = [os.path.realpath(a) for a in allowed + [good]], []
+            # a rig file the command line names is the user's own: reading it, wherever it is, is what was asked
+            named = [a for flag, a in zip(case.get("argv", []), case.get("argv", [])[1:]) if flag == "--rig"]
+            corrupt._AUDIT.allowed = [os.path.realpath(a) for a in allowed + [good] + named]
+            corrupt._AUDIT.seen = []
             try:
-                result, detail = (_run_api(case, good) if case["kind"] == "api" else _run_cli(case, good, out))
+                if case["kind"] == "api":
+                    result, detail = _run_api(case, good)
+                elif case["kind"] == "rig":
+                    result, detail = _run_rig(case, good, out)
+                elif case["kind"] == "stdin":
+                    result, detail = _run_cli({"argv": ["stream", "a person walks forward", "--follow", "--seconds",
+                                                        "1"]}, good, out, _stdin_bytes(case))
+                else:
+                    result, detail = _run_cli(case, good, out)
             except (BundleError, ValueError) as e:
                 result, detail = ("refused", str(e)) if str(e) else ("crash", f"{type(e).__name__} with no message")
             except Exception as e:   # noqa: BLE001
@@ -195,9 +274,9 @@ def worker(good: Path, work: Path) -> None:
 
 def make_cases(n: int, seed: int) -> list[dict]:
     rng = np.random.default_rng(seed)
-    kinds = rng.choice(3, size=n, p=[0.4, 0.3, 0.3])
-    return [(api_case, cli_case, lambda r: {"kind": "bundle", "state": int(r.integers(2 ** 63))})[k](rng)
-            for k in kinds]
+    kinds = rng.choice(5, size=n, p=[0.3, 0.2, 0.3, 0.1, 0.1])
+    return [(api_case, cli_case, lambda r: {"kind": "bundle", "state": int(r.integers(2 ** 63))}, rig_case,
+             stdin_case)[k](rng) for k in kinds]
 
 
 def _jsonable(case: dict) -> str:
@@ -277,8 +356,14 @@ def _strace_check(trace: Path, good: Path, work: Path, results: list[dict]) -> N
                 os.path.expanduser("~/.cache/Microsoft/DeveloperTools"), "/var/tmp/etilqs_*",   # and its SQLite temps
                 # name resolution, for --rewriter-url (a chat endpoint the user named)
                 "/etc/hosts", "/etc/host.conf", "/etc/nsswitch.conf", "/etc/resolv.conf", "/etc/gai.conf", "/etc/ssl"]
-    outside = set()
+    outside, pending = set(), {}
     for line in trace.read_text(errors="replace").splitlines():
+        pid = line.split(" ", 1)[0]
+        if "<unfinished ...>" in line and '"' in line:     # a call interrupted by another thread's: its end follows
+            pending[pid] = line
+            continue
+        if "resumed>" in line and pid in pending:
+            line = pending.pop(pid) + line
         if '"' not in line or "ENOENT" in line:
             continue
         path = os.path.realpath(line.split('"')[1])

@@ -164,6 +164,62 @@ def external_data(name: str, outside: bool) -> Case:
     return case
 
 
+def graph_edit(name: str, edit) -> Case:
+    """`edit(graph)` applied to a graph's proto, the manifest's hash recomputed: a graph that loads and then lies."""
+    def case(folder: Path) -> None:
+        import onnx
+        model = onnx.load(str(folder / name))
+        edit(model.graph)
+        onnx.save(model, str(folder / name))
+        rehash(folder, name)
+    return case
+
+
+def doubled_presents(g) -> None:
+    """present = concat(present, present): a step whose cache is twice as long as it should be, every step."""
+    import onnx
+    for out in g.output:
+        if out.name.startswith("present."):
+            inner = out.name + ".inner"
+            for node in g.node:
+                node.output[:] = [inner if o == out.name else o for o in node.output]
+            g.node.append(onnx.helper.make_node("Concat", [inner, inner], [out.name], axis=2))
+
+
+def failing_reshape(g) -> None:
+    """The first output reshaped to one row more than it has along axis 1: loads, fails only when run."""
+    import onnx
+    out, h, T = g.output[0].name, onnx.helper, onnx.TensorProto.INT64
+    for node in g.node:
+        node.output[:] = [out + ".inner" if o == out else o for o in node.output]
+    width = [d.dim_value for d in g.output[0].type.tensor_type.shape.dim][-1]
+    g.initializer.extend([h.make_tensor(n, T, [1], [v]) for n, v in (("k0", 0), ("k1", 1), ("k2", 2),
+                                                                      ("width", width))])
+    g.node.extend([h.make_node("Shape", [out + ".inner"], ["shape"]), h.make_node("Slice", ["shape", "k0", "k1"], ["b"]),
+                   h.make_node("Slice", ["shape", "k1", "k2"], ["n"]), h.make_node("Add", ["n", "k1"], ["n1"]),
+                   h.make_node("Concat", ["b", "n1", "width"], ["new_shape"], axis=0),
+                   h.make_node("Reshape", [out + ".inner", "new_shape"], [out])])
+
+
+def tokenizer_part(part: str, spec) -> Case:
+    """tokenizer.json with one part (normalizer, pre_tokenizer, model) replaced, its hash recomputed."""
+    def case(folder: Path) -> None:
+        tok = json.loads((folder / "tokenizer.json").read_text())
+        tok[part] = spec
+        (folder / "tokenizer.json").write_text(json.dumps(tok))
+        rehash(folder, "tokenizer.json")
+    return case
+
+
+def manifest_link(target) -> Case:
+    """manifest.json replaced by a link: to a manifest elsewhere (valid), or to `target(folder)`."""
+    def case(folder: Path) -> None:
+        aside = folder.parent / "manifest-aside.json"
+        (folder / "manifest.json").rename(aside)
+        (folder / "manifest.json").symlink_to(target(folder) if target else aside)
+    return case
+
+
 def sparse_graph(name: str, size: int) -> Case:
     def case(folder: Path) -> None:
         p = folder / name
@@ -213,6 +269,18 @@ def fixed_cases(folder: Path) -> dict[str, Case]:
         "tokenizer: a symlink outside": replace_path("tokenizer.json", outside_symlink),
         "tokenizer: a folder": replace_path("tokenizer.json", lambda f, p: p.mkdir()),
         "tokenizer: missing": replace_path("tokenizer.json", lambda f, p: None),
+        "tokenizer: a normalizer that expands 200,000-fold (hash forged)": tokenizer_part(
+            "normalizer", {"type": "Replace", "pattern": {"String": "a"}, "content": "a" * 200_000}),
+        "tokenizer: a Prepend inside a Sequence (hash forged)": tokenizer_part(
+            "normalizer", {"type": "Sequence", "normalizers": [{"type": "Prepend", "prepend": "x" * 100_000}]}),
+        "tokenizer: an unknown model (hash forged)": tokenizer_part("model", {"type": "Unigram", "vocab": []}),
+        "manifest: a link to another manifest": manifest_link(None),
+        "manifest: a link to /dev/zero": manifest_link(lambda f: Path("/dev/zero")),
+        "manifest: a link to a pipe": manifest_link(lambda f: (os.mkfifo(f.parent / "pipe"), f.parent / "pipe")[1]),
+        "files: a 300-byte name": manifest_edit(lambda m: m["files"].update({"x" * 296 + ".onnx": m["files"][graphs[0]]})),
+        "step.onnx: a cache twice as long as fed (hash forged)": graph_edit("step.onnx", doubled_presents),
+        "decoder.onnx: fails only when run (hash forged)": graph_edit("decoder.onnx", failing_reshape),
+        "lookup.onnx: fails only when run (hash forged)": graph_edit("lookup.onnx", failing_reshape),
     }
     for g in graphs:
         cases.update({
@@ -287,7 +355,12 @@ class _OutsideReads:
         if event == "open" and self.allowed and isinstance(args[0], (str, bytes, os.PathLike)):
             if os.fsdecode(args[0]) == ".":     # files.py's O_TMPFILE open, relative to a folder fd the hook cannot see
                 return
-            path = os.path.realpath(os.fsdecode(args[0]))
+            path = os.fsdecode(args[0])
+            if len(args) > 2 and isinstance(args[2], int) and args[2] & getattr(os, "O_NOFOLLOW", 0):
+                # opened without following a link: what is read is the entry itself, wherever a link points
+                path = os.path.join(os.path.realpath(os.path.dirname(path)), os.path.basename(path))
+            else:
+                path = os.path.realpath(path)
             if not any(path == a or path.startswith(a + os.sep) for a in self.allowed):
                 self.seen.append(path)
 

@@ -14,9 +14,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import onnx
 import pytest
-from corrupt import read_manifest, rehash, write_manifest
+from corrupt import doubled_presents, failing_reshape, graph_edit, read_manifest, rehash, write_manifest
 from test_tca import add_caption_index
 from toy_bundle import portable_toy_bundle, toy_bundle  # noqa: F401  (fixtures)
 
@@ -163,24 +162,9 @@ def test_info_reads_the_tokenizer_not_only_its_hash(toy_bundle, tmp_path, capsys
 
 # -------------------------------------------------------------------------------------- lying graphs
 
-def edit_graph(bundle: Path, name: str, edit) -> None:
-    model = onnx.load(str(bundle / name))
-    edit(model.graph)
-    onnx.save(model, str(bundle / name))
-    rehash(bundle, name)
-
-
 def test_a_step_whose_cache_grows_too_fast_is_refused_at_once(toy_bundle, tmp_path):  # noqa: F811
     b = copy_of(toy_bundle, tmp_path)
-
-    def double_the_presents(g):         # present = concat(present, present): twice as long every step
-        for out in g.output:
-            if out.name.startswith("present."):
-                inner = out.name + ".inner"
-                for node in g.node:
-                    node.output[:] = [inner if o == out.name else o for o in node.output]
-                g.node.append(onnx.helper.make_node("Concat", [inner, inner], [out.name], axis=2))
-    edit_graph(b, "step.onnx", double_the_presents)
+    graph_edit("step.onnx", doubled_presents)(b)
     gen = MotionGenerator(b)
     start = time.perf_counter()
     with pytest.raises(BundleError, match=r"step.onnx: returned logits .* and a cache .* the manifest's model says"):
@@ -190,20 +174,7 @@ def test_a_step_whose_cache_grows_too_fast_is_refused_at_once(toy_bundle, tmp_pa
 
 def test_a_graph_onnxruntime_cannot_run_is_a_bundle_error(toy_bundle, tmp_path, capsys):  # noqa: F811
     b = copy_of(toy_bundle, tmp_path)
-
-    def bad_reshape(g):                  # features reshaped to one frame more than they have: fails only when run
-        out, h, T = g.output[0].name, onnx.helper, onnx.TensorProto.INT64
-        for node in g.node:
-            node.output[:] = [out + ".inner" if o == out else o for o in node.output]
-        g.initializer.extend([h.make_tensor(n, T, [1], [v]) for n, v in (("k0", 0), ("k1", 1), ("k2", 2),
-                                                                          ("width", 263))])
-        g.node.extend([h.make_node("Shape", [out + ".inner"], ["shape"]),
-                       h.make_node("Slice", ["shape", "k0", "k1"], ["batch"]),
-                       h.make_node("Slice", ["shape", "k1", "k2"], ["frames"]),
-                       h.make_node("Add", ["frames", "k1"], ["more"]),
-                       h.make_node("Concat", ["batch", "more", "width"], ["new_shape"], axis=0),
-                       h.make_node("Reshape", [out + ".inner", "new_shape"], [out])])
-    edit_graph(b, "decoder.onnx", bad_reshape)
+    graph_edit("decoder.onnx", failing_reshape)(b)
     with pytest.raises(BundleError, match=r"decoder.onnx: onnxruntime could not run the decoder graph"):
         MotionGenerator(b).generate(WALK, seconds=1, seed=0)
     code = main(["generate", WALK, "--bundle", str(b), "--seconds", "1", "-o", str(tmp_path / "x.npy")])
