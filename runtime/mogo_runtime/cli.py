@@ -148,6 +148,8 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(str(e))
     except (BundleError, ValueError, OSError) as e:  # BundleError and OutputError included
         return _fail(str(e))
+    except MemoryError:
+        return _fail("out of memory (ask for less: fewer characters, shorter motions)")
     except KeyboardInterrupt:
         print("mogo: interrupted", file=sys.stderr)
         return 130

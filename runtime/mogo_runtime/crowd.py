@@ -47,16 +47,25 @@ MEMORY_SHARE = 0.5        # of the memory available when a crowd is made, what i
 
 
 def available_memory() -> int:
-    """Bytes of memory available to a new allocation now (Linux: MemAvailable; elsewhere the free pages)."""
+    """Bytes of memory available to a new allocation now: the machine's (Linux: MemAvailable; elsewhere the free
+    pages), at most what this process's address-space limit leaves (`ulimit -v`)."""
     try:
         with open("/proc/meminfo") as f:
-            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+            free = next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
     except (OSError, StopIteration, ValueError, IndexError):
-        pass
+        try:
+            free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (OSError, ValueError, AttributeError):
+            free = 1 << 30         # nothing says: 1 GiB
     try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, AttributeError):
-        return 1 << 30             # nothing says: 1 GiB
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+        with open("/proc/self/statm") as f:
+            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        return free if limit == resource.RLIM_INFINITY else max(0, min(free, limit - used))
+    except (ImportError, OSError, ValueError):
+        return free
 
 
 class Character:

@@ -181,6 +181,27 @@ def test_a_graph_onnxruntime_cannot_run_is_a_bundle_error(toy_bundle, tmp_path, 
     assert "could not run the decoder graph" in one_error_line(capsys, code)
 
 
+def test_onnxruntime_adds_no_lines_to_an_error(toy_bundle, tmp_path):  # noqa: F811
+    """A graph onnxruntime warns about while loading (an unused initializer), refused for its metadata: the error
+    is the only line (onnxruntime's warning came first, in colour, before)."""
+    import onnx
+
+    b = copy_of(toy_bundle, tmp_path)
+
+    def unused_weight_and_wrong_facts(g):
+        g.initializer.append(onnx.numpy_helper.from_array(np.zeros(3, np.float32), "never_used"))
+    graph_edit("decoder.onnx", unused_weight_and_wrong_facts)(b)
+    model = onnx.load(str(b / "decoder.onnx"))
+    onnx.helper.set_model_props(model, {"mogo.downsample": "9"})
+    onnx.save(model, str(b / "decoder.onnx"))
+    rehash(b, "decoder.onnx")
+    code = "import sys; from mogo_runtime.cli import main; sys.exit(main())"
+    p = subprocess.run([sys.executable, "-c", code, "generate", WALK, "--bundle", str(b), "-o", str(tmp_path / "x.npy")],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and p.stderr.startswith("mogo: error:") and p.stderr.count("\n") == 1, p.stderr
+    assert "metadata mogo.downsample is '9'" in p.stderr
+
+
 # -------------------------------------------------------------------------------------------- sizes
 
 def test_names_no_file_system_takes_are_refused_with_the_reason(toy_bundle, tmp_path, capsys):  # noqa: F811
