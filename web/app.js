@@ -1,6 +1,6 @@
 // The page: pick a bundle variant, type a prompt, watch the skeleton move as frames stream in, change the prompt
 // mid-stream, download BVH / JSON. Generation runs in worker.js; this module draws (viewer.js) and keeps the
-// motion on screen for the downloads.
+// motion on screen for the downloads (files.js).
 //
 // URL parameters: bundle (a folder relative to the repository root, or an absolute URL; default bundles/base),
 // variant (default int8 where offered, else fp32), threads (onnxruntime-web threads; more than 1 only where the
@@ -10,10 +10,9 @@
 // and the timings.
 
 import { Bundle, urlLoader } from '../js/src/index.js';
-import { jointsToBvhText } from '../js/src/outputs/bvh.js';
+import { bvhText, download, fileStem, jsonText } from './files.js';
 import { SkeletonViewer } from './viewer.js';
 
-const JSON_DECIMALS = 4;   // as runtime/mogo_runtime/motion.py writes .json files: 0.1 mm
 const AHEAD_SECONDS = 1;   // how far a stream is decoded ahead of what is shown: a new prompt shows within this
 // Variants this runtime is known to run (its tests cover them, js/test): fp32, and int8 made by dynamic
 // quantization (run one row per call, runtime/mogo_runtime/engine.py). Any other variant (e.g. `portable`, whose
@@ -340,58 +339,6 @@ function updateReadout() {
   $('stats').textContent = lines.join(' · ');
 }
 
-// ---- files ----------------------------------------------------------------------------------------------
-
-function joinedJoints() {
-  const m = page.motion;
-  const J3 = page.manifest.skeleton.parents.length * 3;
-  const out = new Float32Array(m.frames.length * J3);
-  m.frames.forEach((f, i) => out.set(f, i * J3));
-  return out;
-}
-
-function bvhText() {
-  const m = page.motion;
-  return jointsToBvhText(joinedJoints(), m.frames.length, page.manifest.skeleton, { fps: m.fps });
-}
-
-/** The `.json` the Python runtime writes (Motion.to_dict), plus what made it: variant, tokens, prompt switches. */
-function jsonText() {
-  const m = page.motion, sk = page.manifest.skeleton;
-  const J3 = sk.parents.length * 3;
-  const frames = m.frames.map((f) => Array.from({ length: J3 / 3 }, (_, j) => [0, 1, 2].map((k) => roundTo(f[3 * j + k], JSON_DECIMALS))));
-  const data = {
-    text: m.texts.join(' | '), aligned_text: null, seed: '@SEED@', fps: m.fps, num_frames: m.frames.length,
-    skeleton: sk, frames,
-    variant: m.variant, bundle: bundleParam,
-    tokens: m.tokens ? Array.from({ length: m.tokens.length / m.levels }, (_, t) => Array.from(m.tokens.subarray(t * m.levels, (t + 1) * m.levels))) : null,
-    prompts: [{ text: m.texts[0], token: 0, frame: 0 }, ...m.switches],
-  };
-  // the seed is a BigInt: written as JSON's integer (no prompt can hold this text unescaped)
-  return JSON.stringify(data).replace('"seed":"@SEED@"', `"seed":${m.seed}`);
-}
-
-/** numpy's round(x, decimals): x * 10**d rounded half to even, divided back. */
-function roundTo(x, decimals) {
-  const f = 10 ** decimals, y = x * f, r = Math.round(y);
-  return (Math.abs(y % 1) === 0.5 && r % 2 !== 0 ? r - 1 : r) / f;
-}
-
-function download(text, name, type) {
-  const url = URL.createObjectURL(new Blob([text], { type }));
-  const a = Object.assign(document.createElement('a'), { href: url, download: name });
-  document.body.append(a);
-  a.click();
-  a.remove();
-  setTimeout(() => URL.revokeObjectURL(url), 10_000);
-}
-
-function fileStem() {
-  const m = page.motion;
-  const words = m.texts[0].toLowerCase().replace(/[^a-z0-9]+/g, '_').replace(/^_|_$/g, '').slice(0, 48) || 'motion';
-  return `${words}_seed${m.seed}${m.kind === 'stream' ? '_stream' : ''}`;
-}
-
 // ---- controls -------------------------------------------------------------------------------------------
 
 function setBusy(what) {
@@ -449,8 +396,10 @@ $('play').onclick = () => {
   viewer.player.playing = !viewer.player.playing;
   $('play').textContent = viewer.player.playing ? 'Pause' : 'Play';
 };
-$('download-bvh').onclick = guard(() => download(bvhText(), `${fileStem()}.bvh`, 'text/plain'));
-$('download-json').onclick = guard(() => download(jsonText(), `${fileStem()}.json`, 'application/json'));
+$('download-bvh').onclick = guard(() => download(bvhText(page.motion, page.manifest.skeleton),
+  `${fileStem(page.motion)}.bvh`, 'text/plain'));
+$('download-json').onclick = guard(() => download(jsonText(page.motion, page.manifest.skeleton, bundleParam),
+  `${fileStem(page.motion)}.json`, 'application/json'));
 // Enter: the running stream's new prompt (endless bundles); with none running, what the last button pressed did, so
 // a stream that ended or failed is not silently followed by a clip
 $('prompt').addEventListener('keydown', (e) => {
