@@ -205,34 +205,24 @@ function yieldToEvents() {
 async function progressFetch(url) {
   const response = await fetch(url);
   const name = decodeURIComponent(new URL(url).pathname.split('/').pop());
-  return {
-    ok: response.ok,
-    status: response.status,
-    async arrayBuffer() {
-      const total = Number(response.headers.get('content-length')) || 0;
-      const reader = response.body.getReader();
-      const parts = [];
-      let got = 0, last = 0;
-      for (;;) {
-        const { done, value } = await reader.read();
-        if (done) break;
-        parts.push(value);
-        got += value.length;
-        if (got - last > (1 << 20) || got === total) {
-          last = got;
-          self.postMessage({ type: 'status', text: `loading ${name}: ${mb(got)}${total ? ` of ${mb(total)}` : ''}` });
-        }
+  const total = Number(response.headers.get('content-length')) || 0;
+  let got = 0, last = 0;
+  // the body as it downloads, reported on the way; the loader reads it and stops past the size the manifest gives
+  const report = new TransformStream({
+    transform(chunk, controller) {
+      got += chunk.length;
+      if (got - last > (1 << 20) || got === total) {
+        last = got;
+        self.postMessage({ type: 'status', text: `loading ${name}: ${mb(got)}${total ? ` of ${mb(total)}` : ''}` });
       }
-      const out = new Uint8Array(got);
-      let at = 0;
-      for (const p of parts) {
-        out.set(p, at);
-        at += p.length;
-      }
-      self.postMessage({ type: 'status', text: `checking and opening ${name} (${mb(got)})` });
-      return out.buffer;
+      controller.enqueue(chunk);
     },
-  };
+    flush() {
+      self.postMessage({ type: 'status', text: `checking and opening ${name} (${mb(got)})` });
+    },
+  });
+  return { ok: response.ok, status: response.status, headers: response.headers,
+    body: response.body ? response.body.pipeThrough(report) : null };
 }
 
 function mb(bytes) {

@@ -37,10 +37,12 @@ export async function* generateTokens(backend, textEmb, sampling, rngs, maxToken
   }
 }
 
-/** Runs the loop to the end: -> one (T_b, L) Int32Array per prompt. */
-export async function collectTokens(steps, batch, numLevels) {
+/** Runs the loop to the end: -> one (T_b, L) Int32Array per prompt; `onProgress(step)` as each step's tokens come. */
+export async function collectTokens(steps, batch, numLevels, onProgress = null) {
   const out = Array.from({ length: batch }, () => []);
+  let step = 0;
   for await (const { picked, alive } of steps) {
+    onProgress?.(++step);
     for (let b = 0; b < batch; b++) if (alive[b]) out[b].push(...picked.subarray(b * numLevels, (b + 1) * numLevels));
   }
   return out.map((o) => Int32Array.from(o));
@@ -148,7 +150,7 @@ export class GenerationTask {
 
   #collect(steps, batch, onProgress) {
     const limit = this.fixedTokens ?? this.maxTokens;
-    return collectTokens(onProgress ? reported(steps, onProgress, limit) : steps, batch, this.backend.dims.numLevels);
+    return collectTokens(steps, batch, this.backend.dims.numLevels, onProgress && ((step) => onProgress(step, limit)));
   }
 
   /** One character following prompt i (row i of textEmbs (N, text_dim)) from token starts[i] on (starts[0] = 0). */
@@ -171,7 +173,7 @@ export class GenerationTask {
   /**
    * One prompt's frames as its tokens are sampled, a chunk at a time: yields {index, features (n, D),
    * joints (n, J, 3)}, n >= 1. With `loop` (an EndlessLoop of this prompt) the stream follows that loop's prompt
-   * changes; `beforeStep` is awaited before each token (a pending prompt switch lands there).
+   * switches; `beforeStep` is awaited before each token (a prompt switch being encoded lands there).
    */
   stream(textEmb, seed, chunk = 4, loop = null, beforeStep = null) {
     const maker = new FrameMaker(this.backend.dims, this.skeleton, chunk);   // checks chunk now, not at the first frame
@@ -186,14 +188,5 @@ export class GenerationTask {
     }
     const n = maker.due(true);
     if (n) yield maker.framesFrom(await this.backend.decode(maker.window(n), 1));
-  }
-}
-
-/** `steps`, `onProgress(step, limit)` called as each step's tokens are handed on. */
-async function* reported(steps, onProgress, limit) {
-  let t = 0;
-  for await (const item of steps) {
-    onProgress(++t, limit);
-    yield item;
   }
 }

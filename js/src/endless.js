@@ -86,6 +86,8 @@ export class EndlessLoop {
     this.policy = new StepPolicy(sampling, backend.dims);
     this.streams = seeds.map((seed, b) => new StreamContext(this.policy, this.#row(textEmb, b, seeds.length), seed, spec));
     this.past = seeds.map(() => null);
+    this.running = null;    // while a step runs: the index of the token after it
+    this.deferred = null;   // a prompt switch asked for while a step runs, made when it ends
   }
 
   /** Tokens picked so far by each stream. */
@@ -94,9 +96,17 @@ export class EndlessLoop {
   /** Motions ended by END and started again, over all streams. */
   get restarts() { return this.streams.reduce((n, s) => n + s.restarts, 0); }
 
-  /** (B, text_dim) embeddings to follow from the next token on. */
+  /**
+   * (B, text_dim) embeddings to follow from the next token on -> that token's index. Asked for while a step runs
+   * (an await away), the switch is made when the step ends: the step was planned under the old prompt, and an END
+   * it picks is picked again at once, so the new prompt must not reach it halfway (Python: EndlessLoop's lock).
+   */
   setPrompt(textEmb) {
-    this.streams.forEach((stream, b) => stream.condition(this.#row(textEmb, b, this.streams.length)));
+    const rows = this.streams.map((_, b) => this.#row(textEmb, b, this.streams.length));
+    const make = () => this.streams.forEach((stream, b) => stream.condition(rows[b]));
+    if (this.running === null) make();
+    else this.deferred = make;   // a later switch replaces it: only the last would show
+    return this.running ?? this.count;
   }
 
   #row(textEmb, b, batch) {
@@ -108,7 +118,14 @@ export class EndlessLoop {
   /** -> the next tokens (B, L) of every stream. */
   async step() {
     const L = this.backend.dims.numLevels, picked = new Int32Array(this.streams.length * L);
-    for (let b = 0; b < this.streams.length; b++) picked.set(await this.#step(b), b * L);
+    this.running = this.count + 1;
+    try {
+      for (let b = 0; b < this.streams.length; b++) picked.set(await this.#step(b), b * L);
+    } finally {
+      this.running = null;
+      this.deferred?.();
+      this.deferred = null;
+    }
     return picked;
   }
 

@@ -10,6 +10,7 @@
 import { createSession } from './bundle/io.js';
 import { fixedCache, rowByRow } from './bundle/manifest.js';
 import { BundleError, GRAPHS } from './bundle/sections.js';
+import { oneLine, shown } from './checks.js';
 import { Tokenizer } from './tokenizer.js';
 
 /** A graph returned NaN or inf: its bundle is broken, whatever the input. */
@@ -23,13 +24,14 @@ export class OrtBackend {
   static async open(bundle, variant, { ort, threads = 1, providers }) {
     const manifest = bundle.manifest;
     if (!Object.hasOwn(manifest.variants, variant)) {
-      throw new BundleError(`unknown variant ${JSON.stringify(variant)}; bundle ${bundle.where} has ${Object.keys(manifest.variants).join(', ')}`);
+      throw new BundleError(`unknown variant ${shown(variant)}; bundle ${oneLine(bundle.where)} has `
+        + `${oneLine(Object.keys(manifest.variants).join(', '), 200)}`);
     }
     if (!Number.isInteger(threads) || threads < 1 || threads > MAX_THREADS) {
       throw new RangeError(`threads must be an int in [1, ${MAX_THREADS}], got ${threads}`);
     }
     const tokenizerFile = manifest.textEncoder.tokenizer;
-    const tokenizer = Tokenizer.fromText(new TextDecoder().decode(await bundle.read(tokenizerFile)), bundle.path(tokenizerFile));
+    const tokenizer = Tokenizer.fromText(await bundle.read(tokenizerFile), bundle.path(tokenizerFile));
     if (tokenizer.maxLength !== manifest.textEncoder.maxLength) {
       throw new BundleError(`${tokenizer.source}: cuts at ${tokenizer.maxLength} tokens; manifest text_encoder.max_length is `
         + `${manifest.textEncoder.maxLength}`);
@@ -41,7 +43,7 @@ export class OrtBackend {
       try {
         sessions[graph] = await createSession(ort, bytes, { threads, providers });
       } catch (e) {
-        throw new BundleError(`${bundle.path(file)}: onnxruntime cannot load it (${e.message})`);
+        throw new BundleError(`${bundle.path(file)}: onnxruntime cannot load it (${oneLine(e.message, 300)})`);
       }
       bundle.checkSession(graph, file, sessions[graph], variant);
     }
@@ -63,20 +65,33 @@ export class OrtBackend {
     const size = this.rowByRow.has('text_encoder') ? 1 : TEXT_BATCH;
     for (let i = 0; i < texts.length; i += size) {
       const { inputIds, attentionMask, dims } = this.tokenizer.encodeBatch(texts.slice(i, i + size));
-      const result = await this.sessions.text_encoder.run({
+      const { text_embedding: emb } = await this.#run('text_encoder', {
         input_ids: new this.ort.Tensor('int64', inputIds, dims),
         attention_mask: new this.ort.Tensor('int64', attentionMask, dims),
       });
-      const emb = result.text_embedding;
-      if (emb.dims[1] !== E) {
-        throw new BundleError(`text encoder returned width ${emb.dims[1]}, manifest model.text_dim is ${E}`);
+      if (!sameDims(emb.dims, [dims[0], E])) {
+        throw new BundleError(`${this.#file('text_encoder')}: returned embeddings [${emb.dims}] for ${dims[0]} prompt(s); `
+          + `manifest model.text_dim is ${E}`);
       }
       out.set(this.#finite('text_encoder', emb.data), i * E);
     }
     return out;
   }
 
-  #file(graph) { return this.manifest.variants[this.variant][graph].file; }
+  #file(graph) { return oneLine(this.manifest.variants[this.variant][graph].file); }
+
+  /**
+   * The `graph` session run on `feed`. onnxruntime failing to (an output it cannot allocate, shapes that do not
+   * fit) is a BundleError naming the graph, as the bundle's graphs are what is wrong (engine.py _run).
+   */
+  async #run(graph, feed) {
+    try {
+      return await this.sessions[graph].run(feed);
+    } catch (e) {
+      throw new BundleError(`${this.#file(graph)}: onnxruntime could not run the ${graph} graph (${oneLine(e.message, 300)}); `
+        + 'the bundle is broken');
+    }
+  }
 
   /** `data`, or a NonFiniteOutput naming the graph: NaN or inf must never reach a motion (as the Python engine). */
   #finite(graph, data) {
@@ -116,15 +131,26 @@ export class OrtBackend {
   }
 
   async #step(textEmb, tokens, rows, past, position = null) {
-    const L = this.dims.numLevels;
+    const { numLevels: L, codebookSize: K, headDim } = this.dims, steps = tokens.length / (rows * L);
     const feed = {
       text_embedding: new this.ort.Tensor('float32', textEmb, [rows, this.dims.textDim]),
-      tokens: new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [rows, tokens.length / (rows * L), L]),
+      tokens: new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [rows, steps, L]),
     };
     if (position !== null) feed.position = new this.ort.Tensor('int64', new BigInt64Array(rows).fill(BigInt(position)), [rows]);
     this.manifest.pastNames.forEach((name, i) => { feed[name] = past[i]; });
-    const out = await this.sessions.step.run(feed);
-    return { logits: this.#finite('step', out.logits.data), past: this.manifest.presentNames.map((name) => out[name]) };
+    const out = await this.#run('step', feed), presents = this.manifest.presentNames.map((name) => out[name]);
+    // What the graph returns is held to the manifest every step: a cache that grew by more than the steps fed (or
+    // logits of another width) would be read wrongly, or fill the memory over minutes. The loop reads the last
+    // position's logits: a graph may return only those. The fixed cache keeps its shape.
+    const [n, returned, ...levels] = out.logits.dims, before = position ?? past[0].dims[2];
+    const cache = [rows, this.cacheHeads, position === null ? before + steps : this.capacity, headDim];
+    if (n !== rows || !(returned >= 1 && returned <= steps) || !sameDims(levels, [L, K + 1])
+      || presents.some((p) => !sameDims(p.dims, cache))) {
+      throw new BundleError(`${this.#file('step')}: returned logits [${out.logits.dims}] and a cache `
+        + `[${presents[0].dims}] for ${steps} step(s) after ${before}; the manifest's model says [${rows}, ${steps}, ${L}, `
+        + `${K + 1}] and [${cache}]`);
+    }
+    return { logits: this.#finite('step', out.logits.data), past: presents };
   }
 
   /** The portable step: S tokens are S calls, each writing its slot; logits come back as (rows, S, L, K + 1). */
@@ -157,11 +183,11 @@ export class OrtBackend {
   async #decode(tokens, batch) {
     const L = this.dims.numLevels;
     const ids = new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [batch, tokens.length / (batch * L), L]);
-    const { latent } = await this.sessions.lookup.run({ tokens: ids });
+    const { latent } = await this.#run('lookup', { tokens: ids });
     this.#finite('lookup', latent.data);
-    const { features } = await this.sessions.decoder.run({ latent });
+    const { features } = await this.#run('decoder', { latent });
     const T = tokens.length / (batch * L), want = [batch, T * this.dims.downsample, this.dims.featureDim];
-    if (features.dims.some((d, i) => d !== want[i])) {   // a wrong model.downsample would drop or invent frames
+    if (!sameDims(features.dims, want)) {   // a wrong model.downsample would drop or invent frames
       throw new BundleError(`${this.#file('decoder')}: decoded ${T} tokens to `
         + `[${features.dims.slice(1)}] frames x features; manifest model.downsample ${this.dims.downsample} and `
         + `model.feature_dim ${this.dims.featureDim} promise [${want.slice(1)}]`);
@@ -174,6 +200,8 @@ export class OrtBackend {
     for (const session of Object.values(this.sessions)) await session.release?.();
   }
 }
+
+const sameDims = (dims, want) => dims.length === want.length && dims.every((d, i) => d === want[i]);
 
 const rowOf = (array, rows, r) => array.slice((r * array.length) / rows, ((r + 1) * array.length) / rows);
 

@@ -11,6 +11,7 @@
 import { Bundle } from './bundle/folder.js';
 import { fileLoader } from './bundle/io.js';
 import { SamplingConfig } from './bundle/sampling.js';
+import { shown } from './checks.js';
 import { GenerationTask } from './decoding.js';
 import { OrtBackend } from './engine.js';
 import { expandSeeds } from './policy.js';
@@ -34,7 +35,7 @@ export function checkTexts(texts) {
         + `${MAX_PROMPT_CHARS.toLocaleString('en-US')} (the text encoder reads only its first few hundred words)`);
     }
     if (!t.trim()) {
-      throw new RangeError(`prompt ${i} is empty or whitespace only (${JSON.stringify(t)}); describe a motion, e.g. 'a person walks forward'`);
+      throw new RangeError(`prompt ${i} is empty or whitespace only (${shown(t)}); describe a motion, e.g. 'a person walks forward'`);
     }
     if (!t.isWellFormed()) {
       const at = [...t].findIndex((c) => c.length === 1 && c >= '\ud800' && c <= '\udfff');
@@ -52,7 +53,7 @@ export class MotionGenerator {
    */
   static async load(source, { variant = 'fp32', threads = 1, ort = null, providers, verifyHashes = true } = {}) {
     if (typeof variant !== 'string' || !variant) {
-      throw new TypeError(`variant must be a variant name such as 'fp32' or 'int8', got ${String(variant)}`);
+      throw new TypeError(`variant must be a variant name such as 'fp32' or 'int8', got ${shown(variant)}`);
     }
     const loader = typeof source === 'string' ? fileLoader(source) : source;
     const bundle = await Bundle.load(loader, { verifyHashes });
@@ -99,10 +100,15 @@ export class MotionGenerator {
     }
     const texts = checkTexts(timeline.map(([t]) => t));
     const total = this.tokensFor(seconds);
-    const starts = timeline[0][1] === 0 ? timeline.map(([, s]) => (s ? this.tokensFor(s) : 0)) : null;
-    if (starts === null || starts.some((s, i) => i > 0 && s <= starts[i - 1]) || starts[starts.length - 1] >= total) {
+    let starts;
+    try {
+      starts = timeline.map(([, s]) => (s ? this.tokensFor(s) : 0));
+    } catch (e) {
+      throw new e.constructor(`a timeline start: ${e.message.replace('seconds must be', 'it must be')}`);
+    }
+    if (timeline[0][1] !== 0 || starts.some((s, i) => i > 0 && s <= starts[i - 1]) || starts[starts.length - 1] >= total) {
       throw new RangeError(`timeline starts must begin at 0 and increase, each before the end (${seconds} s); got `
-        + `${JSON.stringify(timeline.map(([, s]) => s))}`);
+        + `${shown(timeline.map(([, s]) => s), 200)}`);
     }
     const first = expandSeeds(seed, 1)[0];
     const { task, emb } = await this.#prepare(texts, seconds, texts.map(() => first), sampling);
@@ -132,12 +138,10 @@ export class MotionGenerator {
     const [most, limit] = this.endless ? [MAX_SECONDS, 'endless streams'] : [this.maxSeconds, 'this bundle'];
     const allowed = `between ${perToken} and ${most} seconds for ${limit} (${this.dims.downsample} frames per token at `
       + `${this.dims.fps} fps)`;
-    if (typeof seconds !== 'number') throw new TypeError(`seconds must be a number ${allowed}, got ${String(seconds)}`);
-    if (!Number.isFinite(seconds) || !(seconds >= perToken / 2 && seconds <= most + perToken)) {
-      throw new RangeError(`seconds must be ${allowed}, got ${seconds}`);
-    }
+    if (typeof seconds !== 'number') throw new TypeError(`seconds must be a number ${allowed}, got ${shown(seconds)}`);
     const tokens = Math.floor(seconds / perToken + 0.5 + 1e-9);   // the epsilon keeps 6.0 s from landing just below
-    if (tokens < 1 || tokens > (this.endless ? Math.round(most / perToken) : this.maxTokens)) {
+    if (!(seconds >= perToken / 2 && seconds <= most + perToken && tokens >= 1
+      && tokens <= (this.endless ? Math.round(most / perToken) : this.maxTokens))) {
       throw new RangeError(`seconds must be ${allowed}, got ${seconds}`);
     }
     return tokens;
@@ -177,13 +181,11 @@ export class FrameStream {
   constructor(gen, task, emb, seed, chunk, text) {
     this.gen = gen;
     this.text = text;
-    this.switches = [];                   // {token, text} of each prompt switch, when it took effect
-    this.pending = Promise.resolve();     // prompt switches still being encoded
-    this.queued = [];                     // encoded switches waiting for the step in flight to finish
-    this.busy = false;                    // a step (or a chunk of them) is running
+    this.switches = [];                 // {token, text} of each prompt switch, where it landed
+    this.closed = false;                // close() was called, or the motion ended: no more prompts
+    this.pending = Promise.resolve();   // prompt switches being encoded, one at a time; each step waits for them
     this.loop = task.streaming !== null ? task.loop(emb, [seed]) : null;
-    this.chunks = task.stream(emb, seed, chunk, this.loop, () => this.#beforeStep());
-    this.frames = this.#frames();
+    this.frames = this.#frames(task.stream(emb, seed, chunk, this.loop, () => this.pending));
   }
 
   [Symbol.asyncIterator]() { return this; }
@@ -196,56 +198,43 @@ export class FrameStream {
   get tokens() { return this.loop ? this.loop.count : 0; }
 
   /**
-   * Follow `text` from the next token sampled on (frames already decoded do not change). The switch lands
-   * at the next token even if this promise is not awaited first.
+   * Follow `text` from the next token sampled on (frames already decoded do not change). The switch lands at the
+   * next token even if this promise is not awaited first; asked for while a step runs, at the token after it.
    */
   setPrompt(text) {
     if (this.loop === null) {
       throw new Error("this bundle was not trained for endless streams (its manifest has no 'streaming' section), "
         + 'so its streams cannot change prompt');
     }
+    if (this.closed) throw new Error('this stream is closed (close(), or its motion ended): it follows no more prompts');
     if (typeof text !== 'string') throw new TypeError(`setPrompt() takes one prompt (a string), got ${typeof text}`);
     checkTexts([text]);
-    // The prompt must not change while a step runs (that step was planned under the old prompt, and an END it
-    // picks is picked again at once): an embedding that arrives then waits for #beforeStep, between two steps.
     this.pending = this.pending.then(async () => {
-      this.queued.push({ emb: await this.gen.backend.encodeText([text]), text });
-      if (!this.busy) this.#apply();
+      const token = this.loop.setPrompt(await this.gen.backend.encodeText([text]));
+      this.text = text;
+      this.switches.push({ token, text });
     });
     return this.pending;
   }
 
-  #apply() {
-    for (const { emb, text } of this.queued.splice(0)) {
-      this.loop.setPrompt(emb);
-      this.text = text;
-      this.switches.push({ token: this.loop.count, text });
-    }
-  }
-
-  async #beforeStep() {
-    await this.pending;
-    this.#apply();
-  }
-
   /** End the stream (no more tokens are sampled). */
-  async close() { await this.frames.return(); }
+  async close() {
+    this.closed = true;
+    await this.frames.return();
+  }
 
   /** Closing the stream (breaking out of the loop below) ends its token loop too. */
-  async* #frames() {
+  async* #frames(chunks) {
     const { featureDim: D } = this.gen.dims, J3 = this.gen.skeleton.parents.length * 3;
     try {
-      this.busy = true;                   // from here until a chunk's frames are out, steps may be running
-      for await (const { index, features, joints } of this.chunks) {
-        this.busy = false;
+      for await (const { index, features, joints } of chunks) {
         for (let i = 0; i < features.length / D; i++) {
           yield { index: index + i, time: (index + i) / this.gen.fps, features: features.slice(i * D, (i + 1) * D),
             joints: joints.slice(i * J3, (i + 1) * J3) };
         }
-        this.busy = true;
       }
     } finally {
-      this.busy = false;
+      this.closed = true;
     }
   }
 }

@@ -13,6 +13,7 @@
 // may round the last bit differently, which moves a pick only when a uniform lands within ~1e-16 of a CDF step
 // (test/sampling.test.mjs measures the CDFs against numpy's).
 
+import { shown } from './checks.js';
 import { PCG64 } from './pcg64.js';
 
 const SEED_LIMIT = 2n ** 63n;
@@ -189,7 +190,7 @@ export function expandSeeds(seed, batch) {
 function toSeed(value) {
   if (typeof value === 'bigint') return value;
   if (typeof value === 'number' && Number.isSafeInteger(value)) return BigInt(value);
-  throw new RangeError(`seed must be an int >= 0 (a BigInt above 2**53) or a list of them, got ${String(value)}`);
+  throw new RangeError(`seed must be an int >= 0 (a BigInt above 2**53) or a list of them, got ${shown(value)}`);
 }
 
 /** The random stream of each prompt: numpy's PCG64 seeded with the prompt's seed. */

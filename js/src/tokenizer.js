@@ -11,6 +11,8 @@
 // with the field named, rather than tokenised differently. test/tokenizer.test.mjs compares with Python on
 // over a thousand strings.
 
+import { BundleError } from './bundle/sections.js';
+import { oneLine, shown } from './checks.js';
 import * as tables from './unicode-tables.js';
 
 const WHITESPACE = /\p{White_Space}/u;   // Rust's char::is_whitespace
@@ -24,7 +26,18 @@ const WORD = '\\p{Alphabetic}\\p{M}\\p{Nd}\\p{Pc}\\p{Join_Control}';
 const WHITESPACE_PRETOKENS = new RegExp(`[${WORD}]+|[^${WORD}\\p{White_Space}]+`, 'gu');
 const CJK = charClass('4e00-9fff 3400-4dbf 20000-2a6df 2a700-2b73f 2b740-2b81f 2b920-2ceaf f900-faff 2f800-2fa1f');
 
-export class TokenizerError extends Error {}
+/** A tokenizer.json this runtime cannot read exactly as Python's `tokenizers` does; the bundle's file is wrong. */
+export class TokenizerError extends BundleError {
+  name = 'TokenizerError';
+}
+
+// The parts both runtimes implement, as runtime/mogo_runtime/text.py TOKENIZER_PARTS: others are refused before any
+// prompt is read (a Replace normalizer that expands a character 200,000-fold aborted Python on a long prompt).
+const PARTS = {
+  normalizer: ['BertNormalizer', 'Lowercase', 'StripAccents', 'NFC', 'NFD', 'NFKC', 'NFKD', 'Sequence'],
+  pre_tokenizer: ['BertPreTokenizer', 'Whitespace', 'WhitespaceSplit', 'Sequence'],
+  model: ['WordPiece', 'WordLevel'],
+};
 
 export class Tokenizer {
   /**
@@ -35,28 +48,27 @@ export class Tokenizer {
     const fail = (field, message) => {
       throw new TokenizerError(`${source}: ${field}: ${message}`);
     };
-    if (json === null || typeof json !== 'object') fail('(top level)', 'expected a JSON object');
+    if (json === null || typeof json !== 'object' || Array.isArray(json)) fail('(top level)', 'expected a JSON object');
+    checkParts(json, source);
     this.source = source;
-    this.normalize = makeNormalizer(json.normalizer ?? null, fail);
-    this.preTokenize = makePreTokenizer(json.pre_tokenizer ?? null, fail);
+    this.normalize = makeNormalizer(json.normalizer ?? null);
+    this.preTokenize = makePreTokenizer(json.pre_tokenizer ?? null);
     this.model = makeModel(json.model, fail);
     this.addedTokens = parseAddedTokens(json.added_tokens ?? [], fail);
     this.template = makeTemplate(json.post_processor ?? null, fail);
     Object.assign(this, parseSettings(json, source, this));
   }
 
-  /** A Tokenizer from the text of a tokenizer.json file. */
+  /** A Tokenizer from a tokenizer.json file's text, or its bytes (UTF-8). */
   static fromText(text, source) {
     let json;
     try {
-      json = JSON.parse(text);
+      json = JSON.parse(typeof text === 'string' ? text : new TextDecoder('utf-8', { fatal: true }).decode(text));
     } catch (e) {
-      throw new TokenizerError(`${source}: not valid JSON (${e.message})`);
+      throw new TokenizerError(`${source}: not a tokenizer.json (${oneLine(e.message, 200)})`);
     }
     return new Tokenizer(json, source);
   }
-
-  tokenToId(token) { return this.addedTokens.find((t) => t.content === token)?.id ?? this.model.vocab.get(token); }
 
   /** One prompt -> ids, truncated and wrapped in the template (no padding). */
   encode(text) {
@@ -103,17 +115,39 @@ function parseSettings(json, source, tok) {
       + 'Re-export the text encoder (it writes truncation into tokenizer.json)');
   }
   if (pad === null || pad.strategy !== 'BatchLongest') {
-    throw new TokenizerError(`${source}: padding must be 'longest in batch', found ${JSON.stringify(pad)}; re-export the text encoder`);
+    throw new TokenizerError(`${source}: padding must be 'longest in batch', found ${shown(pad, 200)}; re-export the text encoder`);
   }
   if ((trunc.direction ?? 'Right') !== 'Right' || (pad.direction ?? 'Right') !== 'Right') {
     throw new TokenizerError(`${source}: truncation and padding must both be on the right, found `
-      + `${JSON.stringify(trunc)} / ${JSON.stringify(pad)}`);
+      + `${shown(trunc, 200)} / ${shown(pad, 200)}`);
   }
   if (!Number.isInteger(trunc.max_length) || trunc.max_length < tok.template.added) {
-    throw new TokenizerError(`${source}: truncation.max_length: expected an integer >= ${tok.template.added}, got ${trunc.max_length}`);
+    throw new TokenizerError(`${source}: truncation.max_length: expected an integer >= ${tok.template.added}, got ${shown(trunc.max_length)}`);
   }
   if (!Number.isInteger(pad.pad_id)) throw new TokenizerError(`${source}: padding.pad_id: expected an integer`);
-  return { maxLength: trunc.max_length, padId: pad.pad_id, padToken: pad.pad_token, padMultiple: pad.pad_to_multiple_of ?? null };
+  const padMultiple = pad.pad_to_multiple_of ?? null;   // more than max_length would pad every batch past it
+  if (padMultiple !== null && !(Number.isInteger(padMultiple) && padMultiple >= 1 && padMultiple <= trunc.max_length)) {
+    throw new TokenizerError(`${source}: padding.pad_to_multiple_of: expected an integer in [1, ${trunc.max_length}], `
+      + `got ${shown(padMultiple)}`);
+  }
+  return { maxLength: trunc.max_length, padId: pad.pad_id, padMultiple };
+}
+
+/** Each normalizer, pre-tokenizer and model in the file (Sequences walked) is one of PARTS (text.py load_tokenizer). */
+function checkParts(json, source) {
+  const parts = Object.keys(PARTS).map((key) => [key, json[key] ?? null]);
+  while (parts.length) {
+    const [key, part] = parts.pop();
+    if (part === null && key !== 'model') continue;
+    if (!PARTS[key].includes(part?.type)) {
+      throw new TokenizerError(`${source}: ${key} ${shown(part?.type)} is not one this runtime reads (it reads `
+        + `${[...PARTS[key]].sort().join(', ')})`);
+    }
+    if (part.type === 'Sequence') {
+      const inner = part[key === 'normalizer' ? 'normalizers' : 'pretokenizers'];
+      parts.push(...(Array.isArray(inner) ? inner.map((p) => [key, p ?? null]) : [[key, false]]));
+    }
+  }
 }
 
 /** A one-character class, from a table of space-separated hex code points and ranges. */
@@ -160,7 +194,7 @@ function splitAddedTokens(text, tokens) {
 
 // ---- normalizers --------------------------------------------------------------------------------------
 
-function makeNormalizer(spec, fail) {
+function makeNormalizer(spec) {
   if (spec === null) return (s) => s;
   switch (spec.type) {
     case 'BertNormalizer': {
@@ -175,11 +209,10 @@ function makeNormalizer(spec, fail) {
     case 'Lowercase': return lowercaseChars;
     case 'StripAccents': return (s) => s.replace(/\p{M}/gu, '');   // every combining mark, unlike BERT's
     case 'NFD': case 'NFC': case 'NFKD': case 'NFKC': return (s) => s.normalize(spec.type);
-    case 'Sequence': {
-      const parts = (spec.normalizers ?? []).map((n) => makeNormalizer(n, fail));
+    default: {   // a Sequence (checkParts let no other type through)
+      const parts = spec.normalizers.map((n) => makeNormalizer(n ?? null));
       return (s) => parts.reduce((acc, n) => n(acc), s);
     }
-    default: return fail('normalizer.type', `unsupported normalizer ${JSON.stringify(spec.type)}`);
   }
 }
 
@@ -198,17 +231,16 @@ const lowercaseChars = (s) => mapChars(s, (c) => c.toLowerCase());
 
 // ---- pre-tokenizers -----------------------------------------------------------------------------------
 
-function makePreTokenizer(spec, fail) {
+function makePreTokenizer(spec) {
   if (spec === null) return (s) => (s ? [s] : []);
   switch (spec.type) {
     case 'BertPreTokenizer': return bertPreTokenize;
     case 'Whitespace': return (s) => s.match(WHITESPACE_PRETOKENS) ?? [];
     case 'WhitespaceSplit': return (s) => splitWhitespace(s);
-    case 'Sequence': {
-      const parts = (spec.pretokenizers ?? []).map((p) => makePreTokenizer(p, fail));
+    default: {   // a Sequence
+      const parts = spec.pretokenizers.map((p) => makePreTokenizer(p ?? null));
       return (s) => parts.reduce((words, p) => words.flatMap(p), [s]);
     }
-    default: return fail('pre_tokenizer.type', `unsupported pre-tokenizer ${JSON.stringify(spec.type)}`);
   }
 }
 
@@ -219,16 +251,15 @@ const bertPreTokenize = (s) => splitWhitespace(s).flatMap((chunk) => chunk.split
 
 // ---- models -------------------------------------------------------------------------------------------
 
+/** A WordLevel or WordPiece model (checkParts let no other type through). */
 function makeModel(spec, fail) {
-  if (spec === null || typeof spec !== 'object') return fail('model', 'missing');
   if (spec.vocab === null || typeof spec.vocab !== 'object' || Array.isArray(spec.vocab)) {
     return fail('model.vocab', 'expected an object of token -> id');
   }
   const vocab = new Map(Object.entries(spec.vocab));
   const unk = vocab.get(spec.unk_token);
-  if (unk === undefined) fail('model.unk_token', `${JSON.stringify(spec.unk_token)} is not in the vocabulary`);
+  if (unk === undefined) fail('model.unk_token', `${shown(spec.unk_token)} is not in the vocabulary`);
   if (spec.type === 'WordLevel') return { vocab, tokenize: (word) => [vocab.get(word) ?? unk] };
-  if (spec.type !== 'WordPiece') return fail('model.type', `unsupported model ${JSON.stringify(spec.type)}`);
   const prefix = spec.continuing_subword_prefix ?? '##';
   const maxChars = spec.max_input_chars_per_word ?? 100;
   return { vocab, tokenize: (word) => wordPiece(word, vocab, prefix, maxChars, unk) };
@@ -270,13 +301,13 @@ function makeTemplate(spec, fail) {
     if (seq < 0 || single.filter((p) => p.Sequence).length !== 1) fail('post_processor.single', 'expected one Sequence');
     const ids = (p) => {
       const tok = spec.special_tokens?.[p.SpecialToken?.id];
-      if (!tok) fail('post_processor.single', `special token ${JSON.stringify(p.SpecialToken?.id)} is not in special_tokens`);
+      if (!tok) fail('post_processor.single', `special token ${shown(p.SpecialToken?.id)} is not in special_tokens`);
       return tok.ids;
     };
     before = single.slice(0, seq).flatMap(ids);
     after = single.slice(seq + 1).flatMap(ids);
   } else {
-    fail('post_processor.type', `unsupported post-processor ${JSON.stringify(spec.type)}`);
+    fail('post_processor.type', `unsupported post-processor ${shown(spec.type)}`);
   }
   if (![...before, ...after].every(Number.isInteger)) fail('post_processor', 'special token ids must be integers');
   const template = (ids) => [...before, ...ids, ...after];

@@ -84,5 +84,22 @@ test('an endless stream has no end; its start is the fixed-length motion of the 
   const streamed = frames.slice(0, m.numFrames).flatMap((f) => Array.from(f.joints));
   assert.ok(streamed.every((x, i) => Math.abs(x - m.joints.data[i]) <= 1e-5));
   await assert.rejects(endless.stream(WALK, { chunk: 0 }), /chunk must be an int in \[1, 1024\]/);
+  assert.throws(() => s.setPrompt(''), /this stream is closed/);
+});
+
+test('a stream closed, or whose motion ended, follows no more prompts', async () => {
+  const closed = /this stream is closed \(close\(\), or its motion ended\): it follows no more prompts$/;
+  const s = await endless.stream(WALK, { seed: 1 });
   assert.throws(() => s.setPrompt(''), /prompt 0 is empty/);
+  await s.next();
+  await s.setPrompt('a person jumps twice');
+  await s.close();
+  assert.throws(() => s.setPrompt('a person turns left'), closed);
+  const never = await endless.stream(WALK, { seed: 1 });   // closed before its first frame
+  await never.close();
+  assert.throws(() => never.setPrompt('a person turns left'), closed);
+  const ended = await endless.stream(WALK, { seed: 1, seconds: 1 });
+  for await (const frame of ended) assert.ok(frame.time < 1);
+  assert.throws(() => ended.setPrompt('a person turns left'), closed);
+  assert.deepEqual(s.switches, [{ token: 1, text: 'a person jumps twice' }]);
 });

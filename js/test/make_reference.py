@@ -3,7 +3,8 @@
     .venv/bin/python js/test/make_reference.py --out /tmp/ref --bundle toy=/tmp/toy [--bundle tiny=...]
 
 Writes into --out:
-  units.json              numpy PCG64 draws, numpy sums, sampler picks on random logits, tokenizer ids
+  units.json              numpy PCG64 draws, numpy sums, sampler picks on random logits, tokenizer ids, the
+                          tokenizer parts the runtimes read
   *.tokenizer.json        the tokenizer files units.json refers to (MiniLM's, configured as the exporter does)
   bundle-<name>.json      per bundle: its name, path and variants
   variant-<name>-<v>.json per bundle and variant: tokenizer ids and text embeddings of the prompts, the first
@@ -30,7 +31,7 @@ from mogo_runtime.decoding import GenerationTask
 from mogo_runtime.kinematics.frames import FootLock
 from mogo_runtime.kinematics.skeleton import HUMANML3D
 from mogo_runtime.policy import make_rngs, sample
-from mogo_runtime.text import TokenizerSettings, configure_tokenizer, tokenize
+from mogo_runtime.text import TOKENIZER_PARTS, TokenizerSettings, configure_tokenizer, tokenize
 
 PROMPTS = ["a person walks forward", "a person jumps twice", "a person turns left and then kicks",
            "A person waves the right hand, then sits down!"]
@@ -191,7 +192,8 @@ def units(out: Path, toy_tokenizer: Path | None) -> dict:
     rng = np.random.default_rng(7)
     tokenizer = tokenizer_cases(out, toy_tokenizer)
     return {"pcg64": pcg64_cases(), "sums": sum_cases(rng), "sampler": sampler_cases(rng), "tokenizer": tokenizer,
-            "code_points": code_point_cases(out), "foot_lock": foot_lock_cases(np.random.default_rng(11))}
+            "code_points": code_point_cases(out), "foot_lock": foot_lock_cases(np.random.default_rng(11)),
+            "tokenizer_parts": {part: sorted(types) for part, types in TOKENIZER_PARTS.items()}}
 
 
 # ---- bundles: what MotionGenerator gives ---------------------------------------------------------------

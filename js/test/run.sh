@@ -3,7 +3,8 @@
 #   1. install onnxruntime-node into js/node_modules if it is missing (--ignore-scripts: its postinstall
 #      downloads binaries the registry package already ships, and fails offline);
 #   2. build the toy bundles of tests/runtime/toy_bundle.py (with and without a streaming section, and with the
-#      portable, int8_fixed and ORT-format variants) in a temporary folder, with the repository's venv;
+#      portable, int8_fixed and ORT-format variants) in a temporary folder, with the repository's venv, and broken
+#      copies of them (test/make_broken.py);
 #   3. write what the Python runtime gives on them (js/test/make_reference.py);
 #   4. run `node --test`, which compares and prints the parity numbers (lines starting "parity:").
 #
@@ -36,13 +37,8 @@ fi
 (cd "$ROOT/tests/runtime" && "$PY" -c "import json, sys; import numpy as np; from pathlib import Path; from toy_bundle import build_toy_bundle
 mean = np.array(json.loads(Path(sys.argv[1], 'manifest.json').read_text())['normalization']['mean'], np.float32)
 build_toy_bundle(Path(sys.argv[2]), mean, portable=True, ort=True)" "$WORK/toy" "$WORK/toy-portable")
-# broken bundles: NaN weights in one graph each, hashes forged (tests/runtime/corrupt.py)
-BROKEN=""
-for graph in step.onnx decoder.onnx; do
-  rm -rf "$WORK/nan-$graph" && cp -r "$WORK/toy" "$WORK/nan-$graph"
-  (cd "$ROOT/tests/runtime" && "$PY" -c "import sys; from pathlib import Path; from corrupt import nan_weights; nan_weights(sys.argv[1])(Path(sys.argv[2]))" "$graph" "$WORK/nan-$graph")
-  BROKEN="$BROKEN $graph=$WORK/nan-$graph"
-done
+# broken bundles, one graph damaged in each, hashes forged (js/test/make_broken.py)
+"$PY" "$JS/test/make_broken.py" "$WORK/toy" "$WORK/toy-portable" "$WORK/broken"
 
 BUNDLES=(--bundle "toy=$WORK/toy" --bundle "toy-clips=$WORK/toy-clips" --bundle "toy-portable=$WORK/toy-portable")
 if [ "${MOGO_JS_TINY:-0}" = "1" ]; then
@@ -61,4 +57,4 @@ done
 
 "$PY" "$JS/test/make_reference.py" --out "$WORK/reference" "${BUNDLES[@]}"
 cd "$JS"
-MOGO_JS_REFERENCE="$WORK/reference" MOGO_JS_TOY="$WORK/toy" MOGO_JS_BROKEN="$BROKEN" node --test test/*.test.mjs
+MOGO_JS_REFERENCE="$WORK/reference" MOGO_JS_TOY="$WORK/toy" MOGO_JS_BROKEN="$WORK/broken" node --test test/*.test.mjs

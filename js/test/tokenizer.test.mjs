@@ -1,6 +1,7 @@
 import test from 'node:test';
 import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
+import { BundleError } from '../src/bundle/sections.js';
 import { Tokenizer } from '../src/tokenizer.js';
 import { readReference, report } from './reference.mjs';
 
@@ -38,6 +39,47 @@ test('a tokenizer.json the runtime cannot honour is refused with the field named
   assert.throws(() => new Tokenizer({ ...json, truncation: null }, 't.json'), /no truncation configured/);
   assert.throws(() => new Tokenizer({ ...json, padding: { ...json.padding, strategy: { Fixed: 128 } } }, 't.json'),
     /padding must be 'longest in batch'/);
-  assert.throws(() => new Tokenizer({ ...json, model: { ...json.model, type: 'BPE' } }, 't.json'), /model.type: unsupported model "BPE"/);
-  assert.throws(() => new Tokenizer({ ...json, normalizer: { type: 'Precompiled' } }, 't.json'), /normalizer.type/);
+  assert.throws(() => new Tokenizer({ ...json, padding: { ...json.padding, pad_to_multiple_of: 1e9 } }, 't.json'),
+    /padding.pad_to_multiple_of: expected an integer in \[1, 256\], got 1000000000/);
+  assert.throws(() => Tokenizer.fromText(new Uint8Array([0x7b, 0xff, 0x7d]), 't.json'), /t\.json: not a tokenizer\.json/);
+});
+
+test('normalizers, pre-tokenizers and models: exactly the ones Python reads (text.py TOKENIZER_PARTS)', () => {
+  const json = JSON.parse(readFileSync(units.tokenizer[0].file, 'utf8')), python = units.tokenizer_parts;
+  // every type the tokenizers library has for each part, and nonsense
+  const known = {
+    normalizer: ['BertNormalizer', 'Strip', 'StripAccents', 'NFC', 'NFD', 'NFKC', 'NFKD', 'Sequence', 'Lowercase', 'Nmt',
+      'Precompiled', 'Replace', 'Prepend', 'ByteLevel', 'x', 7, null],
+    pre_tokenizer: ['BertPreTokenizer', 'ByteLevel', 'Delimiter', 'Metaspace', 'Whitespace', 'Sequence', 'Split',
+      'Punctuation', 'WhitespaceSplit', 'Digits', 'UnicodeScripts', 'FixedLength', 'x', 7, null],
+    model: ['BPE', 'WordPiece', 'WordLevel', 'Unigram', 'x', 7, null],
+  };
+  const list = { normalizer: 'normalizers', pre_tokenizer: 'pretokenizers' };
+  for (const [part, types] of Object.entries(known)) {
+    for (const type of new Set([...types, ...python[part]])) {
+      const spec = { ...(part === 'model' ? json.model : {}), type, ...(type === 'Sequence' ? { [list[part]]: [] } : {}) };
+      const make = () => new Tokenizer({ ...json, [part]: spec }, 'bundle/tokenizer.json');
+      if (python[part].includes(type)) assert.ok(make(), `${part} ${type}`);
+      else {
+        assert.throws(make, (e) => e instanceof BundleError && e.message === `bundle/tokenizer.json: ${part} `
+          + `${JSON.stringify(type) ?? 'undefined'} is not one this runtime reads (it reads ${python[part].join(', ')})`, `${part} ${type}`);
+      }
+    }
+  }
+});
+
+test('a tokenizer that could explode is refused, inside a Sequence too, as Python refuses it', () => {
+  const json = JSON.parse(readFileSync(units.tokenizer[0].file, 'utf8'));
+  for (const [normalizer, named] of [
+    [{ type: 'Replace', pattern: { String: 'a' }, content: 'a'.repeat(200_000) }, '"Replace"'],
+    [{ type: 'Sequence', normalizers: [{ type: 'Lowercase' }, { type: 'Prepend', prepend: 'x'.repeat(100_000) }] }, '"Prepend"'],
+    [{ type: 'Sequence', normalizers: [{ type: 'Sequence', normalizers: [{ type: 'Replace' }] }] }, '"Replace"'],
+    [{ type: 'Sequence', normalizers: 'Lowercase' }, 'undefined'],
+    [{ type: 'Sequence' }, 'undefined'],
+  ]) {
+    assert.throws(() => new Tokenizer({ ...json, normalizer }, 't.json'),
+      (e) => e instanceof BundleError && e.message.startsWith(`t.json: normalizer ${named} is not one this runtime reads`));
+  }
+  assert.throws(() => new Tokenizer({ ...json, pre_tokenizer: { type: 'Sequence', pretokenizers: [{ type: 'Split' }] } }, 't.json'),
+    /t\.json: pre_tokenizer "Split" is not one this runtime reads/);
 });

@@ -130,8 +130,9 @@ class OrtBackend:
         that do not fit) is a BundleError naming the graph, as the bundle's graphs are what is wrong."""
         try:
             return run(*args)
-        except Exception as e:      # onnxruntime's own error types (Fail, InvalidArgument, ...); anything else is ours
-            if type(e).__module__ != "onnxruntime.capi.onnxruntime_pybind11_state":
+        except Exception as e:      # onnxruntime's own error types (Fail, InvalidArgument, ...; a RuntimeError from a
+            # run with IOBinding): `run` is onnxruntime's, so nothing else raises those here
+            if type(e).__module__ != "onnxruntime.capi.onnxruntime_pybind11_state" and type(e) is not RuntimeError:
                 raise
             raise BundleError(f"{self.bundle.graph_path(graph, self.variant)}: onnxruntime could not run the {graph} "
                               f"graph ({shown(str(e), 300)}); the bundle is broken") from None

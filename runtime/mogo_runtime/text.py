@@ -32,7 +32,8 @@ MAX_THREADS = 64   # onnxruntime segfaults or hangs on absurd thread counts; no 
 TOKENIZER_PARTS = {"normalizer": {"BertNormalizer", "Lowercase", "StripAccents", "NFC", "NFD", "NFKC", "NFKD",
                                   "Sequence"},
                    "pre_tokenizer": {"BertPreTokenizer", "Whitespace", "WhitespaceSplit", "Sequence"},
-                   "model": {"WordPiece", "WordLevel"}}
+                   "model": {"WordPiece", "WordLevel"},
+                   "post_processor": {"BertProcessing", "TemplateProcessing"}}
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,11 @@ class TokenizerSettings:
         if trunc is None:
             raise ValueError(f"{source}: no truncation configured; long prompts would exceed the encoder's "
                              f"positions. Re-export the text encoder (it writes truncation into tokenizer.json)")
+        multiple = pad.get("pad_to_multiple_of") if pad is not None else None
+        if multiple is not None and not (isinstance(multiple, int) and 1 <= multiple <= trunc["max_length"]):
+            # rounding up past max_length would pad every batch past what the encoder reads
+            raise ValueError(f"{source}: padding.pad_to_multiple_of must be in [1, {trunc['max_length']}], got "
+                             f"{shown(multiple)}")
         if pad is None or pad.get("length") is not None:
             # a fixed length (the shipped MiniLM file pads to 128) wastes compute; none breaks batching
             raise ValueError(f"{source}: padding must be 'longest in batch', found {shown(pad, 200)}; "
@@ -75,6 +81,10 @@ def load_tokenizer(data: bytes, name: str) -> Tokenizer:
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
         raise ValueError(f"{name}: not a tokenizer.json ({type(e).__name__})") from None
     parts = [(key, spec.get(key)) for key in TOKENIZER_PARTS] if isinstance(spec, dict) else []
+    for i, t in enumerate(spec.get("added_tokens") or [] if isinstance(spec, dict) else []):
+        flags = [f for f in ("single_word", "lstrip", "rstrip") if isinstance(t, dict) and t.get(f)]
+        if flags:          # matching rules the JavaScript runtime does not implement: no tokens would agree
+            raise ValueError(f"{name}: added_tokens[{i}].{flags[0]} is true; this runtime reads plain added tokens")
     while parts:
         key, part = parts.pop()
         if part is None and key != "model":
@@ -144,7 +154,9 @@ def session_options(threads: int):
     opts.inter_op_num_threads = 1
     opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    opts.log_severity_level = 3    # onnxruntime's own warning lines would run into the one-line errors of `mogo`
+    # onnxruntime's own warning and error lines would run into the one-line errors of `mogo`: what fails is raised and
+    # reported by the runtime, naming the graph
+    opts.log_severity_level = 4
     if threads > 1:
         # spinning workers fight the host's own threads for the cores: 2 spinning threads measured 2-3x slower
         # than 1 thread on a busy 2-core machine, and 52% slower than 2 threads without spinning

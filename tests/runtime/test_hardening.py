@@ -202,6 +202,50 @@ def test_onnxruntime_adds_no_lines_to_an_error(toy_bundle, tmp_path):  # noqa: F
     assert "metadata mogo.downsample is '9'" in p.stderr
 
 
+def test_the_broken_bundles_of_the_javascript_tests_are_refused_here_too(toy_bundle, portable_toy_bundle,  # noqa: F811
+                                                                         tmp_path):
+    """js/test/make_broken.py's cases (logits wider or narrower, declared or only at run time, through the portable
+    step's IOBinding too; a cache that grows; a graph that fails when run; NaN weights; an exploding tokenizer):
+    refused by this runtime as by the JavaScript one, naming the file."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "js" / "test"))
+    from make_broken import CASES
+
+    for name, (source, damage) in CASES.items():
+        b = tmp_path / name
+        shutil.copytree(toy_bundle if source == "toy" else portable_toy_bundle, b)
+        damage(b)
+        with pytest.raises(BundleError, match=str(b)):
+            gen = MotionGenerator(b, variant="fp32" if source == "toy" else "portable")
+            gen.generate(WALK, seconds=1, seed=0)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t.update(post_processor={"type": "RobertaProcessing"}), "post_processor 'RobertaProcessing'"),
+    (lambda t: t.update(added_tokens=[{"id": 0, "content": "[PAD]", "special": True, "lstrip": True}]),
+     r"added_tokens\[0\].lstrip is true"),
+    (lambda t: t["padding"].update(pad_to_multiple_of=10 ** 6), "padding.pad_to_multiple_of must be in"),
+], ids=["post-processor", "added-token-rule", "pad-multiple"])
+def test_tokenizers_read_as_the_javascript_runtime_reads_them(toy_bundle, tmp_path, edit, message):  # noqa: F811
+    b = copy_of(toy_bundle, tmp_path)
+    tok = json.loads((b / "tokenizer.json").read_text())
+    edit(tok)
+    (b / "tokenizer.json").write_text(json.dumps(tok))
+    rehash(b, "tokenizer.json")
+    with pytest.raises(BundleError, match=message):
+        MotionGenerator(b)
+
+
+def test_a_model_of_absurd_size_is_refused_before_anything_is_built(toy_bundle, tmp_path):  # noqa: F811
+    b = copy_of(toy_bundle, tmp_path)
+    m = read_manifest(b)
+    m["model"]["n_layers"] = 2 ** 31
+    write_manifest(b, m)
+    start = time.perf_counter()
+    with pytest.raises(BundleError, match=r"field model.n_layers: expected an integer in \[1, 1024\]"):
+        MotionGenerator(b)
+    assert time.perf_counter() - start < 1
+
+
 # -------------------------------------------------------------------------------------------- sizes
 
 def test_names_no_file_system_takes_are_refused_with_the_reason(toy_bundle, tmp_path, capsys):  # noqa: F811

@@ -2,6 +2,7 @@
 // the sections (sections.js) in Python's order, then their agreement, so a broken or foreign bundle is refused,
 // with the file and the dotted field named, before any graph is opened. `parseManifest` returns a frozen object.
 
+import { shown } from '../checks.js';
 import { featureLayout } from '../kinematics/features.js';
 import { SKELETONS, storedSkeleton } from '../kinematics/skeleton.js';
 import {
@@ -31,10 +32,10 @@ const INT8_FIXED = 'int8_fixed';    // the same step graph in per-row int8: batc
 export function parseManifest(data, where) {
   const f = new Fields(data, where);
   if (f.get('schema', null) !== SCHEMA) {
-    f.fail('schema', `is ${JSON.stringify(f.get('schema', null))}, expected "${SCHEMA}" (not a mogo bundle)`);
+    f.fail('schema', `is ${shown(f.get('schema', null))}, expected "${SCHEMA}" (not a mogo bundle)`);
   }
   if (f.get('schema_version', null) !== SCHEMA_VERSION) {
-    f.fail('schema_version', `is ${JSON.stringify(f.get('schema_version', null))}; this runtime reads version `
+    f.fail('schema_version', `is ${shown(f.get('schema_version', null))}; this runtime reads version `
       + `${SCHEMA_VERSION} (re-export the bundle with \`mogo-export export\`)`);
   }
   const producer = f.get('producer', {});
@@ -55,6 +56,12 @@ export function parseManifest(data, where) {
     ort: f.optional('ort', parseOrt),
     portable: f.optional('portable', (s) => parsePortable(s, model, streaming)),
   };
+  for (const [io, more] of [['inputs', 2], ['outputs', 1]]) {   // before n_layers' cache names are built (2**31 of them?)
+    const n = m.graphs.step[io].length, want = more + 2 * model.nLayers;
+    if (n !== want) {
+      f.fail(`graphs.step.${io}`, `${n} tensors; model.n_layers ${model.nLayers} makes ${want} (a key and value each)`);
+    }
+  }
   m.pastNames = cacheNames(m.cache.past, model.nLayers);
   m.presentNames = cacheNames(m.cache.present, model.nLayers);
   checkAgreement(m, f);
@@ -82,7 +89,7 @@ export function graphSpec(manifest, graph, variant) {
 function parseSkeleton(f, features, model) {
   const name = f.str('name');
   if (!Object.hasOwn(SKELETONS, name)) {
-    f.fail('name', `unknown skeleton ${JSON.stringify(name)}; this runtime knows ${Object.keys(SKELETONS).sort().join(', ')}`);
+    f.fail('name', `unknown skeleton ${shown(name)}; this runtime knows ${Object.keys(SKELETONS).sort().join(', ')}`);
   }
   for (const [key, want] of Object.entries(storedSkeleton(SKELETONS[name]))) {
     if (!sameJson(f.get(key), want)) {
@@ -105,14 +112,14 @@ const each = (names, value) => Object.fromEntries(names.map((n) => [n, value]));
 function checkAgreement(m, f) {
   for (const [v, graphs] of Object.entries(m.variants)) {
     for (const [g, { file }] of Object.entries(graphs)) {
-      if (!Object.hasOwn(m.files, file)) f.fail(`variants.${v}.${g}.file`, `${JSON.stringify(file)} is not in 'files'`);
+      if (!Object.hasOwn(m.files, file)) f.fail(`variants.${v}.${g}.file`, `${shown(file)} is not in 'files'`);
     }
   }
   const named = { 'text_encoder.tokenizer': m.textEncoder.tokenizer, 'tca.file': m.tca?.file,
     'ort.required_operators': m.ort?.requiredOperators };
   for (const [field, name] of Object.entries(named)) {
     if (name !== undefined && !Object.hasOwn(m.files, name)) {
-      f.fail(field, `${JSON.stringify(name)} is named by the manifest but not listed in 'files'`);
+      f.fail(field, `${shown(name)} is named by the manifest but not listed in 'files'`);
     }
   }
   for (const [graph, [inputs, outputs]] of Object.entries(GRAPH_IO)) {
@@ -121,14 +128,14 @@ function checkAgreement(m, f) {
       ['outputs', { ...outputs, ...each(step ? m.presentNames : [], 4) }]]) {
       const got = Object.fromEntries(m.graphs[graph][io].map((s) => [s.name, s.shape.length]));
       if (!sameJson(Object.keys(got), Object.keys(want)) || !sameJson(got, want)) {
-        f.fail(`graphs.${graph}.${io}`, `names and ranks are ${JSON.stringify(got)}, expected ${JSON.stringify(want)}`
+        f.fail(`graphs.${graph}.${io}`, `names and ranks are ${shown(got, 200)}, expected ${shown(want, 200)}`
           + `${step ? ' (n_layers and the cache templates)' : ''}`);
       }
     }
   }
   const logits = m.graphs.step.outputs[0].shape, { numLevels: L, codebookSize: K } = m.model;
   if (logits.length !== 4 || logits[2] !== L || logits[3] !== K + 1) {
-    f.fail('graphs.step.outputs[0].shape', `${JSON.stringify(logits)} should end in [${L}, ${K + 1}] (levels, codes + END)`);
+    f.fail('graphs.step.outputs[0].shape', `${shown(logits)} should end in [${L}, ${K + 1}] (levels, codes + END)`);
   }
 }
 
@@ -148,7 +155,7 @@ function checkFixedCache(m, f) {
   const fixedStep = has(INT8_FIXED) ? m.variants[INT8_FIXED].step : null;
   if (fixedStep && fixedStep.quantization?.method !== PER_ROW_INT8) {
     f.fail(`variants.${INT8_FIXED}.step.quantization`, `its step graph is the portable step quantized per row (method `
-      + `"${PER_ROW_INT8}"), got ${JSON.stringify(fixedStep.quantization)}`);
+      + `"${PER_ROW_INT8}"), got ${shown(fixedStep.quantization)}`);
   }
   const { numLevels: L, nHeads, headDim, textDim, codebookSize: K } = m.model;
   const cache = ['float32', [L * nHeads, m.portable.capacity, headDim]];
@@ -159,13 +166,13 @@ function checkFixedCache(m, f) {
   for (const [io, expected] of Object.entries(want)) {
     const specs = m.portable.step[io], names = specs.map((s) => s.name);
     if (!sameJson(names, Object.keys(expected))) {
-      f.fail(`portable.step.${io}`, `names are ${JSON.stringify(names)}, expected ${JSON.stringify(Object.keys(expected))} `
+      f.fail(`portable.step.${io}`, `names are ${shown(names, 200)}, expected ${shown(Object.keys(expected), 200)} `
         + '(n_layers and the cache templates)');
     }
     specs.forEach(({ name, dtype, shape }, i) => {
       // every dim but the batch is fixed: a consumer allocates the cache once, from these numbers
       if (dtype !== expected[name][0] || !sameJson(shape.slice(1), expected[name][1])) {
-        f.fail(`portable.step.${io}[${i}]`, `"${name}" is ${dtype} [${shape.join(', ')}], expected ${expected[name][0]} `
+        f.fail(`portable.step.${io}[${i}]`, `${shown(name)} is ${dtype} ${shown(shape)}, expected ${expected[name][0]} `
           + `[${['batch', ...expected[name][1]].join(', ')}]`);
       }
     });
@@ -184,11 +191,11 @@ function checkOrt(m, f) {
   }
   for (const [v, source] of Object.entries(ort)) {
     if (!has(v) || !has(source) || Object.hasOwn(ort, source)) {
-      f.fail(`ort.variants.${v}`, `"${v}" converted from "${source}": both must be variants, the source not itself in ORT format`);
+      f.fail(`ort.variants.${v}`, `${shown(v)} converted from ${shown(source)}: both must be variants, the source not itself in ORT format`);
     }
     for (const g of GRAPHS) {
       if (!sameJson(m.variants[v][g].quantization, m.variants[source][g].quantization)) {
-        f.fail(`variants.${v}.${g}.quantization`, `differs from variant "${source}", which it was converted from`);
+        f.fail(`variants.${v}.${g}.quantization`, `differs from variant ${shown(source)}, which it was converted from`);
       }
     }
   }

@@ -1,6 +1,8 @@
 // The sampling settings (runtime/mogo_runtime/bundle/sampling.py): what a user passes to generate or stream, and
 // what a manifest's `sampling_defaults` section holds. The policy that applies them is policy.js.
 
+import { shown } from '../checks.js';
+
 export class SamplingConfig {
   /**
    * temperature: 0 = greedy (argmax), no randomness; topK: keep the k most likely codes (null or 0: all); topP:
@@ -10,10 +12,10 @@ export class SamplingConfig {
   constructor({ temperature = 1.0, topK = null, topP = null, guidance = 1.0, ...unknown } = {}) {
     const extra = Object.keys(unknown);
     if (extra.length) {
-      throw new TypeError(`unknown sampling setting ${JSON.stringify(extra[0])} (known: temperature, topK, topP, guidance)`);
+      throw new TypeError(`unknown sampling setting ${shown(extra[0])} (known: temperature, topK, topP, guidance)`);
     }
     if (topK !== null && !(Number.isInteger(topK) && topK >= 0)) {
-      throw new RangeError(`top_k must be an int >= 1 (0 or None: no top-k cut), got ${show(topK)}`);
+      throw new RangeError(`top_k must be an int >= 1 (0 or None: no top-k cut), got ${shown(topK)}`);
     }
     this.temperature = real('temperature', temperature, 'in [0, 100] (0 = greedy)', 0, 100);
     this.topK = topK || null;
@@ -38,9 +40,7 @@ export class SamplingConfig {
 
 /** `value`, a number in [lo, hi] (checks.py as_real): a TypeError for a non-number, a RangeError outside. */
 function real(name, value, must, lo, hi) {
-  if (typeof value !== 'number') throw new TypeError(`${name} must be a number ${must}, got ${show(value)}`);
-  if (!(value >= lo && value <= hi)) throw new RangeError(`${name} must be ${must}, got ${show(value)}`);
+  if (typeof value !== 'number') throw new TypeError(`${name} must be a number ${must}, got ${shown(value)}`);
+  if (!(value >= lo && value <= hi)) throw new RangeError(`${name} must be ${must}, got ${shown(value)}`);
   return value;
 }
-
-const show = (value) => (typeof value === 'string' ? JSON.stringify(value) : String(value));

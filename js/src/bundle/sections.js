@@ -2,6 +2,7 @@
 // the dotted field when one is wrong (runtime/mogo_runtime/bundle/sections.py; docs/bundle.md, "manifest.json").
 // manifest.js puts them together and checks that they agree. Sections come back as plain objects, camelCase.
 
+import { oneLine, shown } from '../checks.js';
 import { SamplingConfig } from './sampling.js';
 
 export const GRAPHS = ['text_encoder', 'step', 'lookup', 'decoder'];
@@ -10,6 +11,7 @@ export const PER_ROW_INT8 = 'mogo.per_row_dynamic';   // int8 with one activatio
 export const PORTABLE_OPSET = 17;   // the portable variant's graphs' opset: this or lower (LayerNormalization's first)
 const NORMALIZATION = 'decoder-output-denormalised';   // decoder.onnx multiplies by Std and adds Mean itself
 const SHA256 = /^[0-9a-f]{64}$/;
+const NAME_MAX = 255;   // bytes of one file name on the file systems a bundle lands on (ext4, APFS, NTFS)
 // the `model` section: snake_case name -> the name the JavaScript side uses
 const MODEL_FIELDS = {
   num_levels: 'numLevels', codebook_size: 'codebookSize', n_layers: 'nLayers', n_heads: 'nHeads',
@@ -31,7 +33,8 @@ export class Fields {
     Object.assign(this, { obj, where, path });
   }
 
-  name(key) { return [this.path, key].filter(Boolean).join('.'); }
+  /** The dotted name of `key` (a key from the file: on one line, cut short). */
+  name(key) { return [this.path, oneLine(key, 60)].filter(Boolean).join('.'); }
 
   fail(key, message) { throw new BundleError(`${this.where}: field ${this.name(key)}: ${message}`); }
 
@@ -44,19 +47,19 @@ export class Fields {
 
   int(key, lo = 0, hi = 2 ** 31, fallback) {
     const v = this.get(key, fallback);
-    if (!Number.isInteger(v) || v < lo || v > hi) this.fail(key, `expected an integer in [${lo}, ${hi}], got ${show(v)}`);
+    if (!Number.isInteger(v) || v < lo || v > hi) this.fail(key, `expected an integer in [${lo}, ${hi}], got ${shown(v)}`);
     return v;
   }
 
   num(key, lo, hi) {
     const v = this.get(key);
-    if (!Number.isFinite(v) || !(v > lo && v <= hi)) this.fail(key, `expected a number in (${lo}, ${hi}], got ${show(v)}`);
+    if (!Number.isFinite(v) || !(v > lo && v <= hi)) this.fail(key, `expected a number in (${lo}, ${hi}], got ${shown(v)}`);
     return v;
   }
 
   str(key, fallback) {
     const v = this.get(key, fallback);
-    if (typeof v !== 'string' || !v) this.fail(key, `expected a non-empty string, got ${show(v)}`);
+    if (typeof v !== 'string' || !v) this.fail(key, `expected a non-empty string, got ${shown(v)}`);
     return v;
   }
 
@@ -73,7 +76,6 @@ export class Fields {
 }
 
 export const kind = (v) => (v === null ? 'null' : Array.isArray(v) ? 'list' : typeof v);
-const show = (v) => (v === undefined ? 'nothing' : JSON.stringify(v));
 
 /** JSON values compared as JSON (object key order aside). */
 export function sameJson(a, b) {
@@ -95,7 +97,7 @@ export function parseModel(f) {
   }
   const K = model.codebookSize, derived = { end_id: K, bos_id: K + 1, pad_id: K + 2, d_model: model.nHeads * model.headDim };
   for (const [key, want] of Object.entries(derived)) {
-    if (f.get(key, want) !== want) f.fail(key, `is ${show(f.get(key))}, the other sizes imply ${want}`);
+    if (f.get(key, want) !== want) f.fail(key, `is ${shown(f.get(key))}, the other sizes imply ${want}`);
   }
   return { ...model, endId: K, bosId: K + 1, padId: K + 2, maxSeconds: (model.maxTokens * model.downsample) / model.fps };
 }
@@ -104,16 +106,16 @@ export function parseModel(f) {
 export function parseGraph(f) {
   const graph = Object.fromEntries(['inputs', 'outputs'].map((io) => [io, f.list(io).map((d, i) => {
     const t = new Fields(d, f.where, `${f.path}.${io}[${i}]`), dtype = t.str('dtype'), shape = t.list('shape');
-    if (!DTYPES.includes(dtype)) t.fail('dtype', `expected one of ${DTYPES.join(', ')}, got ${show(dtype)}`);
+    if (!DTYPES.includes(dtype)) t.fail('dtype', `expected one of ${DTYPES.join(', ')}, got ${shown(dtype)}`);
     if (shape.length > 8 || !shape.every((n) => typeof n === 'string' || (Number.isInteger(n) && n >= 1))) {
-      t.fail('shape', `expected at most 8 dims, each a name or an integer >= 1, got ${JSON.stringify(shape)}`);
+      t.fail('shape', `expected at most 8 dims, each a name or an integer >= 1, got ${shown(shape)}`);
     }
     return { name: t.str('name'), dtype, shape };
   })]));
   for (const [io, specs] of Object.entries(graph)) {
     const names = specs.map((s) => s.name);
     if (!specs.length || new Set(names).size !== names.length) {
-      f.fail(io, `expected a non-empty list of distinct names, got ${JSON.stringify(names)}`);
+      f.fail(io, `expected a non-empty list of distinct names, got ${shown(names, 200)}`);
     }
   }
   return graph;
@@ -140,20 +142,20 @@ export function parseCache(f) {
   for (const key of ['past', 'present']) {
     const names = cacheNames(cache[key], 2);
     if (names.includes(null) || new Set(names).size !== 4 || formatTemplate(cache[key], { layer: 0, kind: 'key' }) === cache[key]) {
-      f.fail(key, `a name template with {layer} and {kind} fields, got ${show(cache[key])}`);
+      f.fail(key, `a name template with {layer} and {kind} fields, got ${shown(cache[key])}`);
     }
   }
   return cache;
 }
 
 export function parseTextEncoder(f) {
-  if (f.str('pooling', 'mean') !== 'mean') f.fail('pooling', `only mean pooling is supported, got ${show(f.get('pooling'))}`);
+  if (f.str('pooling', 'mean') !== 'mean') f.fail('pooling', `only mean pooling is supported, got ${shown(f.get('pooling'))}`);
   return { name: f.str('name'), tokenizer: f.str('tokenizer'), maxLength: f.int('max_length', 2, 65536), pooling: 'mean' };
 }
 
 /** Listed for reference (mode NORMALIZATION: the decoder applies them itself). */
 export function parseNormalization(f, model) {
-  if (f.str('mode') !== NORMALIZATION) f.fail('mode', `expected "${NORMALIZATION}", got ${show(f.get('mode'))}`);
+  if (f.str('mode') !== NORMALIZATION) f.fail('mode', `expected "${NORMALIZATION}", got ${shown(f.get('mode'))}`);
   const stats = {};
   for (const key of ['mean', 'std']) {
     const v = f.list(key);
@@ -206,11 +208,11 @@ export function parseTca(f, model) {
   const defaults = { lexical_weight: 0.05, split_margin: 0.02 };
   for (const [key, fallback] of Object.entries(defaults)) {
     const v = f.get(key, fallback);
-    if (typeof v !== 'number' || !(v >= 0 && v <= 1)) f.fail(key, `expected a number in [0, 1], got ${show(v)}`);
+    if (typeof v !== 'number' || !(v >= 0 && v <= 1)) f.fail(key, `expected a number in [0, 1], got ${shown(v)}`);
   }
-  if (!['int8', 'float16'].includes(f.get('dtype'))) f.fail('dtype', `expected "int8" or "float16", got ${show(f.get('dtype'))}`);
-  if (f.get('dim') !== model.textDim) f.fail('dim', `is ${show(f.get('dim'))}, model.text_dim is ${model.textDim}`);
-  if (typeof f.get('labels') !== 'boolean') f.fail('labels', `expected true or false, got ${show(f.get('labels'))}`);
+  if (!['int8', 'float16'].includes(f.get('dtype'))) f.fail('dtype', `expected "int8" or "float16", got ${shown(f.get('dtype'))}`);
+  if (f.get('dim') !== model.textDim) f.fail('dim', `is ${shown(f.get('dim'))}, model.text_dim is ${model.textDim}`);
+  if (typeof f.get('labels') !== 'boolean') f.fail('labels', `expected true or false, got ${shown(f.get('labels'))}`);
   return {
     file: f.str('file'), count: f.int('count', 1), dim: model.textDim, dtype: f.get('dtype'), encoder: f.str('encoder'),
     labels: f.get('labels'), split: f.str('split', 'train'),
@@ -236,8 +238,11 @@ export function parseFiles(f) {
     if (!name || name.includes('/') || name === '.' || name === '..' || name.includes('\\') || name.includes('\0')) {
       f.fail(name, 'a bundle file must be a plain file name inside the bundle folder');
     }
+    if (new TextEncoder().encode(name).length > NAME_MAX) {
+      f.fail(name, `a file name of more than ${NAME_MAX} bytes (no file system takes it)`);
+    }
     const digest = entry.str('sha256');
-    if (!SHA256.test(digest)) entry.fail('sha256', `expected 64 lowercase hex digits, got ${show(digest)}`);
+    if (!SHA256.test(digest)) entry.fail('sha256', `expected 64 lowercase hex digits, got ${shown(digest)}`);
     files[name] = { bytes: entry.int('bytes', 0, 2 ** 40), sha256: digest };
   }
   if (!Object.keys(files).length) f.fail('', 'lists no files');

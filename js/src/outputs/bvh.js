@@ -6,6 +6,7 @@
 //   import { jointsToBvhText } from 'mogo-runtime';
 //   const text = jointsToBvhText(motion.joints.data, motion.numFrames, manifest.skeleton, { fps: 20 });
 
+import { shown } from '../checks.js';
 import { childrenOf, depthFirst } from '../kinematics/skeleton.js';
 import { IDENTITY, at, axisAngle, localRotations, matmul, norm, restOffsets, scale, transpose } from './ik.js';
 
@@ -22,7 +23,7 @@ const DEG = 180 / Math.PI;      // numpy's rad2deg
  * @returns {string} the BVH file's text
  */
 export function jointsToBvhText(joints, T, skeleton, { fps = 20, units = 'cm' } = {}) {
-  if (!Object.hasOwn(UNIT_SCALE, units)) throw new RangeError(`units must be one of cm, m, got ${JSON.stringify(units)}`);
+  if (!Object.hasOwn(UNIT_SCALE, units)) throw new RangeError(`units must be one of cm, m, got ${shown(units)}`);
   if (!(Number.isFinite(fps) && fps > 0)) throw new RangeError(`fps must be > 0 (frames per second), got ${fps}`);
   const sk = describe(skeleton), J = sk.parents.length;
   if (!Number.isInteger(T) || T < 1 || joints.length !== T * J * 3) {
@@ -87,7 +88,7 @@ function roundHalfEven(x) {
 
 function format(pos, T, offsets, euler, sk, fps, unitScale) {
   for (const n of sk.names) {
-    if (!n || /\s/.test(n)) throw new RangeError(`skeleton ${sk.name}: joint name ${JSON.stringify(n)} cannot be written to BVH (empty or has spaces)`);
+    if (!n || /\s/.test(n)) throw new RangeError(`skeleton ${sk.name}: joint name ${shown(n)} cannot be written to BVH (empty or has spaces)`);
   }
   const lines = ['HIERARCHY'], vec = (v) => v.map(fixed6).join(' ');
   const joint = (j, depth) => {

@@ -134,7 +134,7 @@ class Bundle:
 
         opts = ort.SessionOptions()
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
-        opts.log_severity_level = 3    # our own errors name the file; onnxruntime's warnings would only add lines
+        opts.log_severity_level = 4    # our own errors name the file; onnxruntime's lines would only add to them
         seen: set[str] = set()
         for variant in variants or self.variants:
             for graph in GRAPHS:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass
 
-from ..checks import Fields, kind
+from ..checks import Fields, kind, shown
 from ..kinematics.features import FeatureLayout
 from ..kinematics.skeleton import SKELETONS, Skeleton
 from .sampling import SamplingConfig
@@ -147,8 +147,9 @@ class Manifest:
                     **outputs, **dict.fromkeys(self.present_names if cache else (), 4)})):
                 got = {s.name: len(s.shape) for s in specs}
                 if list(got) != list(want) or got != want:
-                    raise BundleError(f"{where}: field graphs.{graph}.{kind_}: names and ranks are {got}, expected "
-                                      f"{want}" + (" (n_layers and the cache templates)" if cache else ""))
+                    raise BundleError(f"{where}: field graphs.{graph}.{kind_}: names and ranks are {shown(got, 300)}, "
+                                      f"expected {shown(want, 300)}" + (" (n_layers and the cache templates)"
+                                                                         if cache else ""))
         logits = step.outputs[0].shape
         if len(logits) != 4 or logits[2:] != (m.num_levels, m.codebook_size + 1):
             raise BundleError(f"{where}: field graphs.step.outputs[0].shape: {list(logits)} should end in "

@@ -17,6 +17,8 @@ PER_ROW_INT8 = "mogo.per_row_dynamic"   # int8 with one activation scale per row
 PORTABLE_OPSET = 17            # the portable variant's graphs' opset: this or lower (LayerNormalization's first)
 NORMALIZATION = "decoder-output-denormalised"   # decoder.onnx multiplies by Std and adds Mean itself
 _SHA256 = re.compile(r"[0-9a-f]{64}")
+MODEL_MAX = {"num_levels": 64, "n_layers": 1024, "n_heads": 1024, "head_dim": 65536, "text_dim": 65536,
+             "codebook_size": 2 ** 24, "feature_dim": 65536, "latent_dim": 65536}
 
 
 class BundleError(ValueError):
@@ -70,8 +72,11 @@ class ModelDims(SpecialTokens):
 
     @classmethod
     def parse(cls, f: Fields) -> "ModelDims":
+        # sizes a reader allocates or names things by (a cache name per layer) are bounded: 2**31 layers would make
+        # billions of names before any check could fail
         dims = cls(**{x.name: f.num(x.name, 0, 1000) if x.name == "fps" else
-                      f.int(x.name, lo=0 if x.name == "receptive_field" else 1) for x in fields(cls)})
+                      f.int(x.name, lo=0 if x.name == "receptive_field" else 1, hi=MODEL_MAX.get(x.name, 2 ** 31))
+                      for x in fields(cls)})
         for key, want in (("end_id", dims.end_id), ("bos_id", dims.bos_id), ("pad_id", dims.pad_id),
                           ("d_model", dims.n_heads * dims.head_dim)):
             if f.get(key, want) != want:
