@@ -7,7 +7,7 @@
 // the range of the whole input tensor, so in a batch a row's numbers would depend on its neighbours
 // (docs/bundle.md, the generation loop, step 3). Their cache is then one list of tensors per row.
 
-import { createSession } from './bundle/io.js';
+import { concat, createSession } from './bundle/io.js';
 import { fixedCache, rowByRow } from './bundle/manifest.js';
 import { BundleError, GRAPHS } from './bundle/sections.js';
 import { oneLine, shown } from './checks.js';
@@ -204,13 +204,3 @@ export class OrtBackend {
 const sameDims = (dims, want) => dims.length === want.length && dims.every((d, i) => d === want[i]);
 
 const rowOf = (array, rows, r) => array.slice((r * array.length) / rows, ((r + 1) * array.length) / rows);
-
-function concat(arrays) {
-  const out = new Float32Array(arrays.reduce((n, a) => n + a.length, 0));
-  let at = 0;
-  for (const a of arrays) {
-    out.set(a, at);
-    at += a.length;
-  }
-  return out;
-}

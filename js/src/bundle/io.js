@@ -78,18 +78,23 @@ export function urlLoader(baseUrl, fetchFn = globalThis.fetch) {
         }
         chunks.push(chunk.value);
       }
-      const out = new Uint8Array(chunks.reduce((n, c) => n + c.length, 0));
-      let at = 0;
-      for (const c of chunks) {
-        out.set(c, at);
-        at += c.length;
-      }
-      return out;
+      return concat(chunks);
     },
   };
 }
 
 const inBytes = (n) => `${n.toLocaleString('en-US')} bytes`;
+
+/** Typed arrays of one kind (bytes, floats) joined end to end, into a new array of that kind (none: no bytes). */
+export function concat(arrays) {
+  const out = new (arrays[0]?.constructor ?? Uint8Array)(arrays.reduce((n, a) => n + a.length, 0));
+  let at = 0;
+  for (const a of arrays) {
+    out.set(a, at);
+    at += a.length;
+  }
+  return out;
+}
 
 function checkMost(most) {
   if (!Number.isSafeInteger(most) || most < 0) {
