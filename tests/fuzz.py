@@ -83,7 +83,12 @@ def api_case(rng) -> dict:
 
 
 def cli_case(rng) -> dict:
-    argv = [_pick(rng, ["generate", "stream", "info", "rigs", "dance", ""])]
+    argv = [_pick(rng, ["generate", "stream", "info", "rigs", "crowd", "dance", ""])]
+    if argv[0] == "crowd":       # sizes: a crowd is bounded by the memory available
+        return {"kind": "cli", "argv": ["crowd", "a person walks", "-n", _pick(rng, ["1", "3", "2000", "-1", "x",
+                                                                                      "1e9", "4000000"]),
+                                        "--seconds", _pick(rng, ["0.2", "1", "0", "x"]), "--variant",
+                                        _pick(rng, ["int8_fixed", "portable", "fp32"]), "-o", "OUT/crowd"]}
     if argv[0] in ("generate", "stream"):
         text = _pick(rng, TEXTS[:14])
         argv.append(text if isinstance(text, str) else str(text))
@@ -193,7 +198,7 @@ def _run_rig(case: dict, bundle: Path, out: Path) -> tuple[str, str]:
 def _run_cli(case: dict, bundle: Path, out: Path, stdin: bytes | None = b"") -> tuple[str, str]:
     from mogo_runtime.cli import main
     argv = [a.replace("OUT/", f"{out}/") for a in case["argv"]]
-    if argv[0] in ("generate", "stream") and "--bundle" not in argv:
+    if argv[0] in ("generate", "stream", "crowd") and "--bundle" not in argv:
         argv += ["--bundle", str(bundle)]
     if argv[0] == "info":            # not the default bundle folder of the working directory
         argv.append(str(bundle))
@@ -234,6 +239,10 @@ def worker(good: Path, work: Path) -> None:
     import corrupt
     from mogo_runtime import BundleError
     allowed = corrupt.allowed_folders(work)
+    # answers go on a private copy of stdout; fd 1 itself points at stderr, so a line some library writes
+    # there from C (past redirect_stdout) cannot corrupt the driver's JSON
+    answers = os.fdopen(os.dup(1), "w")
+    os.dup2(2, 1)
     for line in sys.stdin:
         case = _decode(json.loads(line))
         out = work / "out"
@@ -267,7 +276,7 @@ def worker(good: Path, work: Path) -> None:
             if corrupt._AUDIT.seen:
                 result, detail = "outside", f"opened {corrupt._AUDIT.seen[0]}"
         print(json.dumps({"result": result, "detail": detail[:500], "seconds": time.perf_counter() - start}),
-              flush=True)
+              file=answers, flush=True)
 
 
 # ----------------------------------------------------------------------------------------------- the driver
@@ -328,7 +337,10 @@ def run(cases: list[dict], good: Path, strace: bool = False, progress=None) -> l
                                     "seconds": TIME_LIMIT_S * 2})
                     i += 1
                     break
-                results.append(json.loads(line))
+                try:
+                    results.append(json.loads(line))
+                except json.JSONDecodeError:
+                    results.append({"result": "crash", "detail": f"the worker answered {line[:200]!r}", "seconds": 0})
                 i += 1
                 if progress and (i % 100 == 0 or i == len(cases)):
                     progress(i)
@@ -398,7 +410,7 @@ def main() -> int:
         from toy_bundle import build_toy_bundle
         tmp = Path(tempfile.mkdtemp(prefix="mogo-fuzz-bundle-"))
         mean = np.load(HERE.parents[1] / "shared" / "fixtures" / "humanml3d" / "Mean.npy")
-        good = build_toy_bundle(tmp / "toy", mean)
+        good = build_toy_bundle(tmp / "toy", mean, portable=True)     # portable: crowds too
     start = time.perf_counter()
     try:
         results = run(cases, good, args.strace,
