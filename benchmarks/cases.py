@@ -97,7 +97,9 @@ def case_step(args) -> dict:
     for P in pasts:
         past = [rng.standard_normal((rows, L * m.n_heads, P, m.head_dim)).astype(np.float32)
                 for _ in bundle.manifest.past_names]
-        feed = {"text_embedding": emb, "tokens": tokens, **dict(zip(bundle.manifest.past_names, past))}
+        control = bundle.manifest.control        # a model with control reads a control vector too (zeros: none)
+        feed = {"text_embedding": emb, "tokens": tokens, **dict(zip(bundle.manifest.past_names, past)),
+                **({"control": np.zeros((rows, 1, control.dim), np.float32)} if control else {})}
         for _ in range(args.warmup):
             session.run(outputs, feed)
         per_repeat = []

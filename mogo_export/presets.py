@@ -106,7 +106,8 @@ TINY = Preset(
     # unit tests: trains in seconds
     vq=dict(width=32, code_dim=16, downsample=2, depth=2, num_levels=2, codebook_size=32),
     # unit tests (the verifier's parity rows reach past=13, beyond this model's max_rel_dist of 8)
-    transformer=dict(num_levels=2, codebook_size=32, d_model=32, n_layers=2, n_heads=2, max_rel_dist=8),
+    transformer=dict(num_levels=2, codebook_size=32, d_model=32, n_layers=2, n_heads=2, max_rel_dist=8,
+                     control_horizon=2),
     # a few dozen steps: trains in seconds
     vq_schedule=Schedule(steps=60, batch_size=8, lr=1e-3, warmup=5, val_every=30, ckpt_every=30, window=16),
     transformer_schedule=Schedule(steps=60, batch_size=8, lr=1e-3, warmup=5, val_every=30, ckpt_every=30),
@@ -128,8 +129,10 @@ BASE = Preset(
     # dropout 0.1 (with the 1,300-step schedule below): 700 steps without dropout at lr 1e-3 take half the time
     # (9.1 min), but the int8 bundle's action accuracy drops from 0.899 to 0.871 (0.903 -> 0.886 in fp32)
     # (README, "Training and exporting")
+    # control_horizon 5: the wanted root trajectory of the next second (5 tokens of 0.2 s), as motion matching's
+    # trajectory features look ~1 s ahead
     transformer=dict(num_levels=4, codebook_size=512, d_model=256, n_layers=4, n_heads=4, max_rel_dist=64,
-                     dropout=0.1, cond_drop_prob=0.1),
+                     dropout=0.1, cond_drop_prob=0.1, control_horizon=5),
     # 2,000 steps at 2e-3 (was 1,500 at 5e-4), set together with mse_loss above (commit 89ec48a); 158 s
     vq_schedule=Schedule(steps=2000, batch_size=32, lr=2e-3, window=64),
     # 1,300 steps at lr 5e-4: sized for a 2-core machine (912 s); the shorter 700-step schedule lost accuracy,
@@ -149,7 +152,8 @@ PAPER = Preset(
     # the paper's sizes: stride 1, 6 levels of 8192 x 128 codes, width 512
     vq=dict(width=512, code_dim=128, downsample=1, depth=3, num_levels=6, codebook_size=8192, mse_loss=0.1),
     # the paper's 6 levels of 8192 codes; it gives no transformer sizes, so a GPT-2-small body (~132M params)
-    transformer=dict(num_levels=6, codebook_size=8192, d_model=768, n_layers=12, n_heads=12, max_rel_dist=256),
+    transformer=dict(num_levels=6, codebook_size=8192, d_model=768, n_layers=12, n_heads=12, max_rel_dist=256,
+                     control_horizon=5),
     # a GPU budget, not measured here: the tests only build the paper models and take one step
     vq_schedule=Schedule(steps=100_000, batch_size=256, lr=2e-4, window=64, val_every=2000, ckpt_every=2000),
     transformer_schedule=Schedule(steps=100_000, batch_size=256, lr=2e-4, val_every=2000, ckpt_every=2000),

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from mogo_runtime.bundle.sampling import GREEDY, SamplingConfig
-from mogo_runtime.bundle.sections import StreamingSpec
+from mogo_runtime.bundle.sections import ControlSpec, StreamingSpec
 from mogo_runtime.clock import NO_CLOCK, StageClock
 from mogo_runtime.decoding import Generated, GenerationTask
 from mogo_runtime.kinematics.skeleton import HUMANML3D, Skeleton, get_skeleton
@@ -34,6 +34,8 @@ class TorchBackend:
         self.std = torch.as_tensor(std, dtype=torch.float32)
         self.kv_cache = kv_cache
         self.dims = model_dims(vq, transformer, fps, max_tokens)
+        c = transformer.cfg
+        self.control = ControlSpec(c.control_horizon, c.control_dim) if c.control_dim else None
 
     @torch.no_grad()
     def encode_text(self, texts: list[str]) -> np.ndarray:
@@ -45,13 +47,16 @@ class TorchBackend:
         return self.transformer.empty_past(rows)
 
     @torch.no_grad()
-    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past):
+    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past, control: np.ndarray | None = None):
         emb, tok = torch.from_numpy(np.ascontiguousarray(text_emb)), torch.from_numpy(tokens)
+        ctrl = None if control is None else torch.from_numpy(np.ascontiguousarray(control, dtype=np.float32))
         if self.kv_cache:
-            logits, present = self.transformer.step(emb, tok, past)
+            logits, present = self.transformer.step(emb, tok, past, ctrl)
             return logits.numpy(), present
-        history = tok if past is None else torch.cat([past, tok], dim=1)
-        logits = self.transformer(emb, history)
+        # no cache: the "past" is the token history itself, and the controls it was fed with
+        history = (tok, ctrl) if past is None else (torch.cat([past[0], tok], dim=1), None if ctrl is None else
+                                                    torch.cat([past[1], ctrl], dim=1))
+        logits = self.transformer(emb, *history)
         return logits[:, -tok.shape[1]:].numpy(), history
 
     @torch.no_grad()

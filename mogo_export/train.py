@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from mogo_runtime.control.vector import root_poses, token_controls
 from mogo_runtime.kinematics.features import recover_from_ric
 from mogo_runtime.kinematics.skeleton import get_skeleton
 from mogo_runtime.outputs.files import write_atomic
@@ -208,14 +209,20 @@ def train_vq(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progre
 # -----------------------------------------------------------------------------
 # tokens and captions
 
+TOKENS_FORMAT = 2    # 2: each clip's root poses beside its tokens (ROOT + key), for control
+ROOT = "root:"
+
+
 @torch.no_grad()
 def extract_tokens(data: Path, out: Path, progress: bool = True, device: torch.device | None = None) -> Path:
-    """Run the trained VQ over every clip of every split once; the transformer trains on these."""
+    """Run the trained VQ over every clip of every split once; the transformer trains on these tokens, and on
+    each clip's root poses (its control targets)."""
     path = out / "tokens.npz"
     vq, cfg, payload = build_from_checkpoint(out / "vq.pt", "vq", vqmodel.VQConfig, vqmodel.MoSAVQ)
     if path.exists():
         with np.load(path) as z:
-            if str(z["vq_step"]) == str(payload["train"]["step"]):
+            if str(z["vq_step"]) == str(payload["train"]["step"]) and "format" in z.files \
+                    and int(z["format"]) == TOKENS_FORMAT:
                 return path
     vq.to(device or torch.device("cpu"))
     arrays = {}
@@ -227,8 +234,10 @@ def extract_tokens(data: Path, out: Path, progress: bool = True, device: torch.d
             T = len(features) // cfg.downsample * cfg.downsample
             x = _on(vq, torch.from_numpy(ds.normalize(features[:T]))[None])
             arrays[key] = vq.encode(x)[0].cpu().numpy().astype(np.int16)
+            arrays[ROOT + key] = root_poses(features[:T]).astype(np.float32)    # what control is trained on
     # a file object, so np.savez does not append ".npz" to the temporary name
-    return write_atomic(path, lambda f: np.savez(f, vq_step=np.array(payload["train"]["step"]), **arrays))
+    return write_atomic(path, lambda f: np.savez(f, vq_step=np.array(payload["train"]["step"]),
+                                                 format=np.array(TOKENS_FORMAT), **arrays))
 
 
 def _caption_table(data: Path, out: Path, encoder_name: str, write: bool = True):
@@ -249,9 +258,10 @@ def _caption_table(data: Path, out: Path, encoder_name: str, write: bool = True)
 # -----------------------------------------------------------------------------
 # RQHC-Transformer
 
-def _clip_examples(seqs, caps, emb, rng, n, cfg, by_length=None) -> list:
-    """Whole clips: ([BOS, t...], [t..., END]) with one of the clip's captions. With `by_length` (indices sorted by
-    length) the clips are a random run of similar lengths, so little compute goes to padding."""
+def _clip_examples(seqs, caps, emb, rng, n, cfg, by_length=None, controls=None) -> list:
+    """Whole clips: ([BOS, t...], [t..., END]) with one of the clip's captions, and the clip's controls (T + 1,
+    control_dim) when the model has control. With `by_length` (indices sorted by length) the clips are a random run
+    of similar lengths, so little compute goes to padding."""
     if by_length is not None and len(by_length) > n:
         start = rng.integers(len(by_length) - n + 1)
         idx = by_length[start:start + n]
@@ -262,37 +272,48 @@ def _clip_examples(seqs, caps, emb, rng, n, cfg, by_length=None) -> list:
         seq, c = seqs[i], caps[i]
         tin = np.concatenate([np.full((1, cfg.num_levels), cfg.bos_id), seq])
         tgt = np.concatenate([seq, np.full((1, cfg.num_levels), cfg.end_id)])
-        out.append((emb[c[rng.integers(len(c))]], tin, tgt))
+        out.append((emb[c[rng.integers(len(c))]], tin, tgt, None if controls is None else controls[i]))
     return out
 
 
-def _window_examples(timelines, emb, rng, n, cfg, streaming) -> list:
+def _window_examples(timelines, emb, rng, n, cfg, streaming, controls=None) -> list:
     """Streaming windows, the contexts an endless stream refreshes to (mogo_runtime.decoding.EndlessLoop): the
     prompt prefix of one timed segment of a long sequence, then 1 to window + refresh of that segment's tokens,
-    ending anywhere in it, so the context often begins mid-action rather than where a motion starts. All are
-    targets; no END (the data's action does not end there, it changes). The stream keeps nothing across a prompt
-    switch, so windows never reach into the previous segment."""
+    ending anywhere in it, so the context often begins mid-action rather than where a motion starts (with `controls`,
+    each timeline's per-token controls, as for clips). All are targets; no END (the data's action does not end
+    there, it changes). The stream keeps nothing across a prompt switch, so windows never reach into the previous
+    segment."""
     out = []
     for _ in range(n):
-        seq, segments = timelines[rng.integers(len(timelines))]
+        t = rng.integers(len(timelines))
+        seq, segments = timelines[t]
         first, stop, captions = segments[rng.integers(len(segments))]
         end = int(rng.integers(first, stop))                     # the last target
         start = max(first, end + 1 - int(rng.integers(1, streaming.window + streaming.refresh + 1)))
         tin = np.concatenate([np.full((1, cfg.num_levels), cfg.bos_id), seq[start:end]])
-        out.append((emb[captions[rng.integers(len(captions))]], tin, seq[start:end + 1]))
+        # the control of each step: BOS picks token `start`, as an endless stream's rebuilt context does
+        out.append((emb[captions[rng.integers(len(captions))]], tin, seq[start:end + 1],
+                    None if controls is None else controls[t][start:end + 1]))
     return out
 
 
 def _pad(examples, cfg):
-    """-> (text (B, text_dim), tokens_in (B, S, L), targets (B, S, L), lengths (B,)), PAD-filled on the right."""
-    lengths = np.array([len(tgt) - 1 for _, _, tgt in examples])
+    """-> (text (B, text_dim), tokens_in (B, S, L), targets (B, S, L), lengths (B,)[, control (B, S, control_dim)]),
+    PAD-filled (the control zero-filled) on the right; the control only for a model with control."""
+    lengths = np.array([len(tgt) - 1 for _, _, tgt, _ in examples])
     S, L = lengths.max() + 1, cfg.num_levels
     tin = np.full((len(examples), S, L), cfg.pad_id, np.int64)
     tgt = np.full((len(examples), S, L), cfg.pad_id, np.int64)
-    for b, (_, i, t) in enumerate(examples):
+    for b, (_, i, t, _) in enumerate(examples):
         tin[b, :len(i)], tgt[b, :len(t)] = i, t
-    text = np.stack([e for e, _, _ in examples]).astype(np.float32)
-    return torch.from_numpy(text), torch.from_numpy(tin), torch.from_numpy(tgt), torch.from_numpy(lengths)
+    text = np.stack([e for e, _, _, _ in examples]).astype(np.float32)
+    batch = torch.from_numpy(text), torch.from_numpy(tin), torch.from_numpy(tgt), torch.from_numpy(lengths)
+    if not cfg.control_dim:
+        return batch
+    control = np.zeros((len(examples), S, cfg.control_dim), np.float32)
+    for b, (_, i, _, c) in enumerate(examples):
+        control[b, :len(i)] = c[:len(i)]
+    return (*batch, torch.from_numpy(control))
 
 
 def _token_units(timeline, tokens: np.ndarray, downsample: int):
@@ -332,26 +353,32 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
     with group.main_first():     # rank 0 embeds and extracts; the others read its files
         table, emb, text_dim = _caption_table(data, out, text_encoder, write=group.is_main)
         tokens_path = extract_tokens(data, out, progress and group.is_main, group.device)
+    cfg = pset.transformer_config(num_levels=vq_cfg["num_levels"], codebook_size=vq_cfg["codebook_size"],
+                                  text_dim=text_dim, **overrides)
     with np.load(tokens_path) as z:
-        tokens = {k: z[k].astype(np.int64) for k in z.files if "/" in k}
+        tokens = {k: z[k].astype(np.int64) for k in z.files if "/" in k and not k.startswith(ROOT)}
+        controls = {k: token_controls(z[ROOT + k], vq_cfg["downsample"], cfg.control_horizon)
+                    for k in tokens} if cfg.control_dim else None
 
     def split(name):
         keys = sorted(k for k in tokens if k.startswith(name + "/"))
-        return [tokens[k] for k in keys], [table[(name, k.split("/", 1)[1])] for k in keys]
+        return ([tokens[k] for k in keys], [table[(name, k.split("/", 1)[1])] for k in keys],
+                None if controls is None else [controls[k] for k in keys])
 
-    seqs, caps = split("train")
-    val_seqs, val_caps = split("val")
+    seqs, caps, seq_controls = split("train")
+    val_seqs, val_caps, val_controls = split("val")
     streaming = pset.streaming
-    timelines = [_token_units(t, tokens[f"timeline/train/{t.clip_id}"], vq_cfg["downsample"])
+    timelines = [(_token_units(t, tokens[f"timeline/train/{t.clip_id}"], vq_cfg["downsample"]),
+                  None if controls is None else controls[f"timeline/train/{t.clip_id}"])
                  for t in read_timelines(data, "train")]
-    timelines = [t for t in timelines if t[1]]
+    timelines = [t for t in timelines if t[0][1]]
+    timeline_controls = None if controls is None else [c for _, c in timelines]
+    timelines = [t for t, _ in timelines]
     n_window = streaming.windows if timelines else 0
     # the loss weighs each slice by its targets, so slices of windows need not be the same size
     window_rows = group.part(n_window)
     by_length = np.argsort([len(q) for q in seqs], kind="stable")
     max_tokens = max(len(s) for s in seqs)
-    cfg = pset.transformer_config(num_levels=vq_cfg["num_levels"], codebook_size=vq_cfg["codebook_size"],
-                                  text_dim=text_dim, **overrides)
     torch.manual_seed(seed)
     model = tmodel.RQHCTransformer(cfg).to(group.device)
     decay = [p for n, p in model.named_parameters() if p.dim() >= 2]
@@ -378,9 +405,10 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
         _set_lr(opt, sched.lr_at(step))
         # clips and streaming windows as two batches: each is padded to its own longest example only (of this
         # process's slice)
-        batches = [_pad(_clip_examples(seqs, caps, emb, rng, sched.batch_size, cfg, by_length)[rows], cfg)]
+        batches = [_pad(_clip_examples(seqs, caps, emb, rng, sched.batch_size, cfg, by_length, seq_controls)[rows],
+                        cfg)]
         if n_window:
-            windows = _window_examples(timelines, emb, rng, n_window, cfg, streaming)[window_rows]
+            windows = _window_examples(timelines, emb, rng, n_window, cfg, streaming, timeline_controls)[window_rows]
             if windows:
                 batches.append(_pad(windows, cfg))
         batches = [tuple(_on(model, t) for t in b) for b in batches]
@@ -404,7 +432,7 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
         if group.is_main and ((step + 1) % sched.val_every == 0 or last) and val_seqs:
             model.eval()
             with torch.no_grad():
-                val_batch = _pad(_clip_examples(val_seqs, val_caps, emb, val_rng, 64, cfg), cfg)
+                val_batch = _pad(_clip_examples(val_seqs, val_caps, emb, val_rng, 64, cfg, controls=val_controls), cfg)
                 vloss, vstats = model.loss(*(_on(model, t) for t in val_batch))
             meta["val"] = {"loss": vloss.item(), "acc": vstats["acc"].item()}
             bar.write(f"transformer step {step + 1}: val loss {vloss.item():.3f}, acc {vstats['acc'].item():.3f}")

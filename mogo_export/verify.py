@@ -29,6 +29,7 @@ import torch
 from mogo_runtime.bundle.folder import Bundle
 from mogo_runtime.bundle.manifest import INT8_FIXED
 from mogo_runtime.bundle.sampling import GREEDY
+from mogo_runtime.control import FollowPath, Steer, Steering, WalkTo
 from mogo_runtime.decoding import GenerationTask, decode_tokens
 from mogo_runtime.engine import FixedCache, FixedCacheBackend, OrtBackend, open_backend
 from mogo_runtime.kinematics.features import recover_from_ric
@@ -75,7 +76,9 @@ def _step_feed(c, batch, steps, past, seed):
     if past == 0:
         tokens[:, 0] = c.bos_id
     pasts = [torch.randn(batch, c.num_levels * H, past, hd, generator=g) for _ in range(2 * c.n_layers)]
-    return text, tokens, pasts
+    # a model with control reads one more input: random, half of it "present"
+    control = [torch.randn(batch, steps, c.control_dim, generator=g)] if c.control_dim else []
+    return text, tokens, control, pasts
 
 
 def check_graphs(gen: TorchGenerator, ort_backend: OrtBackend, report: Report, th: Thresholds) -> None:
@@ -83,10 +86,11 @@ def check_graphs(gen: TorchGenerator, ort_backend: OrtBackend, report: Report, t
     c = tr.cfg
     worst = 0.0
     for batch, steps, past in [(1, 1, 0), (2, 1, 1), (1, 1, c.max_rel_dist + 5), (3, 4, 0), (2, 2, 7)]:
-        text, tokens, pasts = _step_feed(c, batch, steps, past, seed=batch * 97 + steps * 7 + past)
+        text, tokens, control, pasts = _step_feed(c, batch, steps, past, seed=batch * 97 + steps * 7 + past)
         with torch.no_grad():
-            want = StepGraph(tr)(text, tokens, *pasts)
-        logits, presents = ort_backend.step(text.numpy(), tokens.numpy(), [p.numpy() for p in pasts])
+            want = StepGraph(tr)(text, tokens, *control, *pasts)
+        logits, presents = ort_backend.step(text.numpy(), tokens.numpy(), [p.numpy() for p in pasts],
+                                            *(x.numpy() for x in control))
         err = max(np.abs(logits - want[0].numpy()).max(),
                   max(np.abs(p - w.numpy()).max() for p, w in zip(presents, want[1:])))
         report.add(f"step graph b={batch} s={steps} past={past}", err, f"< {th.fp32_abs:g}", err < th.fp32_abs)
@@ -214,20 +218,58 @@ def check_endless(gen: TorchGenerator, backend, streaming, report: Report, steps
                f"= {steps}", first == steps, fmt="{:.0f}")
 
 
+def controlled_tokens(backend, skeleton, streaming, steps: int, change_every: int = 97) -> np.ndarray:
+    """Greedy tokens (steps, L) of one controlled endless stream: a new request every `change_every` tokens (a goal,
+    a path, a joystick, none), and a new prompt with every second one. The control of each
+    token reads the frames of the tokens before it, so this holds the decoder and the loop's bookkeeping to the
+    same numbers too."""
+    prompts = list(PROMPTS)
+    task = GenerationTask(backend, skeleton, GREEDY, steps, steps, streaming)
+    emb = backend.encode_text(prompts[:1])
+    loop = task.loop(emb, [0])
+    steering = Steering(backend.control, backend.dims, loop.streams[0])
+    rng = np.random.default_rng(0)
+    requests = [lambda: WalkTo(rng.uniform(-6, 6, 2), rng.uniform(0.8, 3.0)),
+                lambda: FollowPath(np.cumsum(rng.uniform(-3, 3, (5, 2)), axis=0), rng.uniform(0.8, 3.0)),
+                lambda: Steer(rng.uniform(-2, 2, 2), rng.uniform(-1, 1, 2)), lambda: None]
+    frames = task.stream(emb, 0, 1, loop, steering)
+    tokens = []
+    for t in range(steps):
+        if t % change_every == 0:
+            target = requests[(t // change_every) % len(requests)]()
+            steering.request(lambda s: target)
+            if (t // change_every) % 2:
+                loop.set_prompt(backend.encode_text([prompts[(t // change_every) % len(prompts)]]))
+        next(frames)
+        tokens.append(loop.streams[0].last.copy())
+    return np.stack(tokens)
+
+
+def check_controlled(gen: TorchGenerator, backend, streaming, report: Report, steps: int = 1000,
+                     name: str = "ORT fp32") -> None:
+    """Torch and ORT (`name`) through the same controlled endless stream: identical greedy tokens."""
+    a = controlled_tokens(gen.backend, gen.skeleton, streaming, steps)
+    b = controlled_tokens(backend, gen.skeleton, streaming, steps)
+    same = np.all(a == b, axis=1)
+    first = int(np.argmin(same)) if not same.all() else steps
+    report.add(f"controlled stream, greedy tokens identical torch vs {name} ({steps} steps, a goal, path, "
+               f"joystick or none every 97, prompt switches)", first, f"= {steps}", first == steps, fmt="{:.0f}")
+
+
 def check_portable_graph(gen: TorchGenerator, portable: FixedCacheBackend, report: Report, th: Thresholds) -> None:
     """The fixed-capacity step against the torch step whose past is the cache's first `position` slots: the
     logits, the slot it writes, and the slots after it, which it must hand back unchanged."""
     c = gen.backend.transformer.cfg
     cap = portable.capacity
     for batch, position in [(1, 0), (2, 1), (1, 7), (3, cap // 2), (2, cap - 1)]:
-        text, tokens, full = _step_feed(c, batch, 1, cap, seed=batch * 131 + position)
+        text, tokens, control, full = _step_feed(c, batch, 1, cap, seed=batch * 131 + position)
         if position == 0:
             tokens[:, 0] = c.bos_id
         with torch.no_grad():
-            want = StepGraph(gen.backend.transformer)(text, tokens, *(p[:, :, :position] for p in full))
+            want = StepGraph(gen.backend.transformer)(text, tokens, *control, *(p[:, :, :position] for p in full))
         # copies: the step writes its slot into the cache in place, and `full` is what the slots are checked against
-        logits, cache = portable.step(text.numpy(), tokens.numpy(), FixedCache([p.numpy().copy() for p in full],
-                                                                                position))
+        cache = FixedCache([p.numpy().copy() for p in full], position)
+        logits, cache = portable.step(text.numpy(), tokens.numpy(), cache, *(x.numpy() for x in control))
         err = max(np.abs(logits - want[0].numpy()).max(),
                   max(np.abs(p[:, :, :position + 1] - w.numpy()).max() for p, w in zip(cache.arrays, want[1:])))
         kept = all(np.array_equal(p[:, :, position + 1:], f[:, :, position + 1:].numpy())
@@ -252,6 +294,8 @@ def check_portable(gen: TorchGenerator, portable: FixedCacheBackend, streaming, 
     report.add("decoded joints, torch vs ORT portable (mm)", err_mm, f"< {th.joints_mm:g}", err_mm < th.joints_mm)
     if streaming is not None:
         check_endless(gen, portable, streaming, report, name="ORT portable")
+        if portable.control is not None:
+            check_controlled(gen, portable, streaming, report, name="ORT portable")
 
 
 def check_int8_fixed(fp32: OrtBackend, fixed, report: Report, th: Thresholds, prompts=PROMPTS) -> None:
@@ -291,6 +335,8 @@ def verify(bundle_path: str | Path, ckpt_dir: str | Path, th: Thresholds = Thres
     streaming = bundle.manifest.streaming
     if streaming is not None:
         check_endless(gen, fp32, streaming, report)
+        if bundle.manifest.control is not None:
+            check_controlled(gen, fp32, streaming, report)
     if portable and "portable" in bundle.variants:
         check_portable(gen, open_backend(bundle, "portable", threads=2), streaming, report, th, prompts)
     if int8 and INT8_FIXED in bundle.variants:

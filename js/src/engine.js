@@ -137,6 +137,11 @@ export class OrtBackend {
       tokens: new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [rows, steps, L]),
     };
     if (position !== null) feed.position = new this.ort.Tensor('int64', new BigInt64Array(rows).fill(BigInt(position)), [rows]);
+    // a model with control reads where the character should go; all zeros: no control (control/vector.py)
+    if (this.manifest.control) {
+      feed.control = new this.ort.Tensor('float32', new Float32Array(rows * steps * this.manifest.control.dim),
+        [rows, steps, this.manifest.control.dim]);
+    }
     this.manifest.pastNames.forEach((name, i) => { feed[name] = past[i]; });
     const out = await this.#run('step', feed), presents = this.manifest.presentNames.map((name) => out[name]);
     // What the graph returns is held to the manifest every step: a cache that grew by more than the steps fed (or

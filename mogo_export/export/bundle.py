@@ -32,7 +32,7 @@ from mogo_runtime.bundle.folder import sha256_file
 from mogo_runtime.bundle.manifest import INT8_FIXED, ORT_SUFFIX, PORTABLE, SCHEMA, SCHEMA_VERSION, Manifest
 from mogo_runtime.bundle.sampling import SamplingConfig
 from mogo_runtime.bundle.sections import (PER_ROW_INT8, PORTABLE_OPSET, GraphFile, GraphSpec, Normalization,
-                                          OrtFormat, PortableSpec, Quantization, StreamingSpec, TensorSpec,
+                                          ControlSpec, OrtFormat, PortableSpec, Quantization, StreamingSpec, TensorSpec,
                                           TextEncoderSpec, required_capacity)
 from mogo_runtime.kinematics.skeleton import get_skeleton
 from mogo_runtime.outputs.files import process_alive, write_atomic
@@ -218,6 +218,7 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
             sampling_defaults=SAMPLING_DEFAULTS,
             tca=tca,
             streaming=StreamingSpec(**trained.streaming) if trained.streaming else None,
+            control=ControlSpec(tr.cfg.control_horizon, tr.cfg.control_dim) if tr.cfg.control_dim else None,
             graphs={g: _graph_spec(io) for g, io in graphs.items()},
             variants=variants,
             portable=portable_spec,

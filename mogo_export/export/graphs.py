@@ -37,9 +37,10 @@ class StepGraph(nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, text_embedding, tokens, *past_flat):
+    def forward(self, text_embedding, tokens, *inputs):
+        control, past_flat = (inputs[0], inputs[1:]) if self.model.cfg.control_dim else (None, inputs)
         past = [(past_flat[2 * i], past_flat[2 * i + 1]) for i in range(len(past_flat) // 2)]
-        logits, presents = self.model.step(text_embedding, tokens, past)
+        logits, presents = self.model.step(text_embedding, tokens, past, control)
         return (logits, *(t for kv in presents for t in kv))
 
 
@@ -116,9 +117,10 @@ def export_module(module: nn.Module, args: tuple, path: Path, input_names, outpu
 
 
 def export_step(model: RQHCTransformer, path: Path, opset: int = DEFAULT_OPSET, metadata: dict | None = None) -> dict:
-    """step.onnx. Inputs: text_embedding float32 [batch, text_dim]; tokens int64 [batch, steps, L];
-    past_key_values.{i}.key/.value float32 [batch, L*n_heads, past, head_dim]. Outputs: logits float32
-    [batch, steps, L, K+1]; present.{i}.key/.value float32 [batch, L*n_heads, past+steps, head_dim]."""
+    """step.onnx. Inputs: text_embedding float32 [batch, text_dim]; tokens int64 [batch, steps, L]; with control,
+    control float32 [batch, steps, control_dim]; past_key_values.{i}.key/.value float32 [batch, L*n_heads, past,
+    head_dim]. Outputs: logits float32 [batch, steps, L, K+1]; present.{i}.key/.value float32 [batch, L*n_heads,
+    past+steps, head_dim]."""
     c = model.cfg
     L, H, hd = c.num_levels, c.n_heads, c.d_model // c.n_heads
     B, S, P = 2, 3, 4  # every dynamic size >= 2 at trace time
@@ -126,17 +128,20 @@ def export_step(model: RQHCTransformer, path: Path, opset: int = DEFAULT_OPSET, 
     text = torch.randn(B, c.text_dim, generator=g)
     tokens = torch.randint(0, c.codebook_size, (B, S, L), generator=g)
     past = [torch.randn(B, L * H, P, hd, generator=g) for _ in range(2 * c.n_layers)]
-    names_in = ["text_embedding", "tokens"]
+    control = [torch.randn(B, S, c.control_dim, generator=g)] if c.control_dim else []
+    names_in = ["text_embedding", "tokens"] + (["control"] if control else [])
     names_out = ["logits"]
     for i in range(c.n_layers):
         names_in += [f"past_key_values.{i}.key", f"past_key_values.{i}.value"]
         names_out += [f"present.{i}.key", f"present.{i}.value"]
     batch, steps, plen = Dim("batch", min=1, max=1024), Dim("steps", min=1, max=4096), Dim("past", min=0, max=8192)
-    dyn = {"text_embedding": {0: batch}, "tokens": {0: batch, 1: steps},
-           "past_flat": [{0: batch, 2: plen} for _ in past]}
-    export_module(StepGraph(model), (text, tokens, *past), path, names_in, names_out,
-                  (dyn["text_embedding"], dyn["tokens"], tuple(dyn["past_flat"])), opset, metadata or {})
+    # forward(text_embedding, tokens, *inputs): the varargs' shapes go as one tuple, the control first
+    dyn = ({0: batch}, {0: batch, 1: steps},
+           (({0: batch, 1: steps},) if control else ()) + tuple({0: batch, 2: plen} for _ in past))
+    export_module(StepGraph(model), (text, tokens, *control, *past), path, names_in, names_out, dyn, opset,
+                  metadata or {})
     expected = {"text_embedding": ["batch", c.text_dim], "tokens": ["batch", "steps", L],
+                **({"control": ["batch", "steps", c.control_dim]} if control else {}),
                 "logits": ["batch", "steps", L, c.codebook_size + 1]}
     for i in range(c.n_layers):
         for kv in ("key", "value"):

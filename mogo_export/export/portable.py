@@ -10,6 +10,7 @@ back whole (the sherpa-onnx whisper decoder's pattern):
 
     text_embedding  float32 [batch, text_dim]
     tokens          int64   [batch, 1, L]           one time step per call
+    control         float32 [batch, 1, control_dim] (a model with control only: mogo_runtime/control)
     position        int64   [batch]                 the slot this step writes = steps already cached
     past_key_values.{i}.key/.value  float32 [batch, L*n_heads, capacity, head_dim]
  -> logits          float32 [batch, 1, L, K+1]
@@ -56,11 +57,13 @@ class FixedCacheStepGraph(nn.Module):
         self.register_buffer("slot_index", torch.zeros(1, c.num_levels * c.n_heads, 1, self.head_dim,
                                                        dtype=torch.int64), persistent=False)
 
-    def forward(self, text_embedding, tokens, position, *past_flat):
+    def forward(self, text_embedding, tokens, *inputs):
         m, c = self.model, self.model.cfg
+        control, position, past_flat = ((inputs[0], inputs[1], inputs[2:]) if c.control_dim
+                                        else (None, inputs[0], inputs[1:]))
         L, H, hd, C = self.levels, self.heads, self.head_dim, c.d_model
         LH = L * H
-        x = self._inputs(text_embedding, tokens)                                  # (B, L, C)
+        x = self._inputs(text_embedding, tokens, control)                         # (B, L, C)
         write = position[:, None, None, None] + self.slot_index                   # (B, LH, 1, hd)
         dist = (position.unsqueeze(1) - self.slots)[:, None, None, :]             # (B, 1, 1, cap)
         future = dist < 0                                                         # slots not yet written
@@ -91,15 +94,16 @@ class FixedCacheStepGraph(nn.Module):
         logits = m.head(m.ln_f(x)).unsqueeze(1)                                   # (B, 1, L, K+1)
         return (logits, *presents)
 
-    def _inputs(self, text_emb, tokens):
+    def _inputs(self, text_emb, tokens, control):
         """`RQHCTransformer._inputs` for one step, in (B, L, C): stream l of a BOS slot is the PnQ prefix, else
-        the sum of the embeddings of levels 0..l."""
+        the sum of the embeddings of levels 0..l; plus the control's projection (B, 1, control_dim) on every level."""
         m, c = self.model, self.model.cfg
         tok = tokens[:, 0]                                                        # (B, L)
         prefix = m.cond_proj(text_emb).unsqueeze(1) + m.q_emb                     # (B, L, C)
         is_bos = (tok == c.bos_id).unsqueeze(-1)                                  # (B, L, 1)
         emb = m.tok_emb(tok + m.level_offset)                                     # (B, L, C)
-        return torch.where(is_bos, prefix, emb.masked_fill(is_bos, 0.0).cumsum(dim=1))
+        x = torch.where(is_bos, prefix, emb.masked_fill(is_bos, 0.0).cumsum(dim=1))
+        return x if control is None else x + m.ctrl_proj(control)                 # (B, 1, C) onto (B, L, C)
 
 
 def export_portable_step(model: RQHCTransformer, path: Path, capacity: int, opset: int = PORTABLE_OPSET,
@@ -113,16 +117,19 @@ def export_portable_step(model: RQHCTransformer, path: Path, capacity: int, opse
     tokens = torch.randint(0, c.codebook_size, (B, 1, L), generator=g)
     position = torch.tensor([3, 5]) % capacity
     past = [torch.randn(B, L * H, capacity, hd, generator=g) for _ in range(2 * c.n_layers)]
-    names_in, names_out = ["text_embedding", "tokens", "position"], ["logits"]
+    control = [torch.randn(B, 1, c.control_dim, generator=g)] if c.control_dim else []
+    names_in = ["text_embedding", "tokens"] + (["control"] if control else []) + ["position"]
+    names_out, fixed = ["logits"], len(names_in)
     for i in range(c.n_layers):
         names_in += [f"past_key_values.{i}.key", f"past_key_values.{i}.value"]
         names_out += [f"present.{i}.key", f"present.{i}.value"]
     batch = Dim("batch", min=1, max=1024)
-    dyn = ({0: batch}, {0: batch}, {0: batch}, tuple({0: batch} for _ in past))
-    export_module(FixedCacheStepGraph(model, capacity), (text, tokens, position, *past), path, names_in, names_out,
-                  dyn, opset, metadata or {})
+    dyn = ({0: batch}, {0: batch}, tuple({0: batch} for _ in names_in[2:]))   # forward(text, tokens, *inputs)
+    export_module(FixedCacheStepGraph(model, capacity), (text, tokens, *control, position, *past), path, names_in,
+                  names_out, dyn, opset, metadata or {})
     cache = ["batch", L * H, capacity, hd]
-    expected = {"text_embedding": ["batch", c.text_dim], "tokens": ["batch", 1, L], "position": ["batch"],
+    expected = {"text_embedding": ["batch", c.text_dim], "tokens": ["batch", 1, L],
+                **({"control": ["batch", 1, c.control_dim]} if control else {}), "position": ["batch"],
                 "logits": ["batch", 1, L, c.codebook_size + 1],
-                **{name: cache for name in names_in[3:] + names_out[1:]}}
+                **{name: cache for name in names_in[fixed:] + names_out[1:]}}
     return check_graph(path, expected)

@@ -9,6 +9,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from mogo_runtime.bundle.sections import SpecialTokens
+from mogo_runtime.control.vector import control_dim
 
 # Tokens: ids 0..K-1 are codes, END = K ends the motion (the head predicts K+1 classes), BOS = K+1 marks
 # "the PnQ prefix goes here" (input only), PAD = K+2 pads batches (input only).
@@ -20,6 +21,11 @@ from mogo_runtime.bundle.sections import SpecialTokens
 #
 # Classifier-free guidance: training replaces the text embedding by zeros with probability cond_drop_prob,
 # so the all-zero text embedding is the null condition; a sampler runs the unconditional branch with zeros.
+#
+# Control (a model with control_horizon > 0): each step also reads a control vector, where the root should go over
+# the next control_horizon tokens (mogo_runtime/control/vector.py), projected and added to every level stream of
+# that step. Training shows a clip's own future root, or all zeros ("no control") with control_drop_prob, and the
+# guidance's null text keeps the control: guidance sharpens the action, the control is obeyed in both branches.
 
 
 @dataclass
@@ -36,10 +42,16 @@ class TransformerConfig(SpecialTokens):
     dropout: float = 0.1         # dropout on attention weights and residual branches (training only)
     max_rel_dist: int = 64       # relative distances are clipped to this; phi has max_rel_dist + 1 rows
     cond_drop_prob: float = 0.1  # chance per training sample to replace the text by the null (zero) text
+    control_horizon: int = 0     # tokens of wanted root trajectory per step (mogo_runtime/control); 0: no control
+    control_drop_prob: float = 0.5  # chance per training sample to see no control (all zeros: "go as you like")
 
     @property
     def vocab_size(self) -> int:  # rows per level of the embedding table
         return self.codebook_size + 3
+
+    @property
+    def control_dim(self) -> int:
+        return control_dim(self.control_horizon) if self.control_horizon else 0
 
 
 class RelativeSelfAttention(nn.Module):
@@ -139,6 +151,7 @@ class RQHCTransformer(nn.Module):
         self.tok_emb = nn.Embedding(L * cfg.vocab_size, C)
         self.q_emb = nn.Parameter(torch.randn(L, C) * 0.02)  # q_emb[l]: which level a stream predicts
         self.cond_proj = nn.Linear(cfg.text_dim, C)
+        self.ctrl_proj = nn.Linear(cfg.control_dim, C) if cfg.control_dim else None
         self.drop = nn.Dropout(cfg.dropout)
         self.blocks = nn.ModuleList([Block(cfg) for _ in range(cfg.n_layers)])
         self.ln_f = nn.LayerNorm(C)
@@ -166,8 +179,9 @@ class RQHCTransformer(nn.Module):
         z = self.tok_emb.weight.new_zeros(batch * cfg.num_levels, cfg.n_heads, 0, cfg.d_model // cfg.n_heads)
         return [(z, z) for _ in range(cfg.n_layers)]
 
-    def _inputs(self, text_emb, tokens):
-        """text_emb (B, text_dim), tokens (B, S, L) -> stream inputs (B*L, S, C), eq. 7-8."""
+    def _inputs(self, text_emb, tokens, control=None):
+        """text_emb (B, text_dim), tokens (B, S, L), control (B, S, control_dim) or None (no control) -> stream
+        inputs (B*L, S, C), eq. 7-8 (plus the control's projection)."""
         cfg = self.cfg
         B, S, L = tokens.shape
         if self.training and cfg.cond_drop_prob > 0:
@@ -179,18 +193,32 @@ class RQHCTransformer(nn.Module):
         # stream l reads the sum of levels 0..l: the residual latent as far as level l has refined it
         cum = emb.masked_fill(is_bos, 0.0).cumsum(dim=2)  # (B, S, L, C)
         x = torch.where(is_bos, prefix, cum)  # (B, S, L, C)
+        if self.ctrl_proj is not None:
+            x = x + self.ctrl_proj(self._control(control, B, S, text_emb)).unsqueeze(2)  # (B, S, 1, C) to every level
         return x.transpose(1, 2).reshape(B * L, S, -1)  # (B*L, S, C), row b*L + l
 
-    def step(self, text_emb, tokens, past):
+    def _control(self, control, B, S, like):
+        """The control as the model reads it: zeros for None; in training, zeros for a control_drop_prob share."""
+        if control is None:
+            return like.new_zeros(B, S, self.cfg.control_dim)
+        if self.training and self.cfg.control_drop_prob > 0:
+            keep = (torch.rand(B, 1, 1, device=control.device) >= self.cfg.control_drop_prob).to(control.dtype)
+            control = control * keep
+        return control
+
+    def step(self, text_emb, tokens, past, control=None):
         """One call of the decoder with a KV cache; serves full sequences, prefill, chunks and single steps.
 
         text_emb (B, text_dim) float; tokens (B, S, L) int64 (BOS where the PnQ prefix goes, i.e. step 0);
+        control (B, S, control_dim) float or None (no control; a model without control takes None only);
         past: per layer (key, value), each (B*L, n_heads, P, head_dim), P >= 0 (see `empty_past`), or the same
         rows folded as (B, L*n_heads, P, head_dim) (the bundle's layout).
         Returns logits (B, S, L, K+1) and presents: per layer (key, value) in the layout of `past`, length P+S.
         """
         B, S, L = tokens.shape
-        x = self.drop(self._inputs(text_emb, tokens))  # (B*L, S, C)
+        if control is not None and self.ctrl_proj is None:
+            raise ValueError("this model was trained without control (control_horizon 0)")
+        x = self.drop(self._inputs(text_emb, tokens, control))  # (B*L, S, C)
         presents = []
         for block, (pk, pv) in zip(self.blocks, past):
             x, k, v = block(x, pk, pv)
@@ -198,19 +226,20 @@ class RQHCTransformer(nn.Module):
         logits = self.head(self.ln_f(x))  # (B*L, S, K+1)
         return logits.view(B, L, S, -1).transpose(1, 2), presents  # (B, S, L, K+1)
 
-    def forward(self, text_emb, tokens):
+    def forward(self, text_emb, tokens, control=None):
         """Full sequence, no cache: text_emb (B, text_dim), tokens (B, S, L) -> logits (B, S, L, K+1)."""
-        return self.step(text_emb, tokens, self.empty_past(tokens.shape[0]))[0]
+        return self.step(text_emb, tokens, self.empty_past(tokens.shape[0]), control)[0]
 
-    def loss(self, text_emb, tokens_in, targets, lengths):
+    def loss(self, text_emb, tokens_in, targets, lengths, control=None):
         """Cross-entropy of eq. 11, averaged over the valid (step, level) pairs, and accuracy.
 
         tokens_in (B, S, L): [BOS, t_0, ..., t_{T-1}, PAD...]; targets (B, S, L): [t_0, ..., t_{T-1}, END, PAD...];
-        lengths (B,): T, the motion length in tokens, so the first T + 1 steps (END included) count.
+        lengths (B,): T, the motion length in tokens, so the first T + 1 steps (END included) count; control
+        (B, S, control_dim): the control each input step reads (None: none).
         Returns (loss, {"acc": (), "acc_per_level": (L,), "count": () the (step, level) pairs averaged over}).
         """
         B, S, L = tokens_in.shape
-        logits = self(text_emb, tokens_in)  # (B, S, L, K+1)
+        logits = self(text_emb, tokens_in, control)  # (B, S, L, K+1)
         valid = torch.arange(S, device=tokens_in.device) <= lengths.unsqueeze(1)  # (B, S)
         valid = valid.unsqueeze(-1).expand(B, S, L)  # (B, S, L)
         tgt = targets.masked_fill(~valid, 0)  # PAD is not a class of the head

@@ -31,6 +31,7 @@ from .bundle.folder import Bundle, read_manifest
 from .bundle.manifest import SCHEMA_VERSION
 from .bundle.sampling import SamplingConfig
 from .bundle.sections import GRAPHS, BundleError
+from .control.commands import Request, parse_request
 from .outputs.motion import RIG_FORMATS, SAVE_FORMATS, check_output_path
 from .outputs.rig import RIGS, load_rig
 from .text import MAX_PROMPT_CHARS, check_texts, load_tokenizer
@@ -39,7 +40,8 @@ DEFAULT_BUNDLE = "bundles/base"
 EXIT_USAGE = 2
 JOINT_DECIMALS = 4     # metres: 0.1 mm
 MAX_MESSAGE = 1000     # characters of an error line
-MAX_LINE_BYTES = 4 * MAX_PROMPT_CHARS + 2   # a line of --follow's stdin: the longest prompt in UTF-8, and its end
+MAX_LINE_BYTES = 1 << 20   # a line of --follow's stdin: a prompt (<= 4 * MAX_PROMPT_CHARS bytes) or a JSON request
+                           # (a 20,000-point path; control/targets.py bounds the points)
 
 
 class UsageError(Exception):
@@ -105,9 +107,11 @@ def build_parser() -> argparse.ArgumentParser:
                                         '(metres, y up, joint order of the bundle\'s skeleton).')
     add_generation_args(stream)
     stream.add_argument("--follow", action="store_true",
-                        help="read new prompts from stdin, one per line, each followed from the next token; an "
-                             '{"event": "prompt", ...} line marks each switch (needs a bundle trained for endless '
-                             "streams)")
+                        help="read requests from stdin, one per line, each followed from the next token: a "
+                             'prompt, or a JSON object ({"prompt": ..., "goal": [x, z], "speed": ...}, {"path": '
+                             '[[x, z], ...]}, {"velocity": [vx, vz], "facing": [x, z]}, {"root": [x, z, heading]}, '
+                             '{"release": true}; control needs a bundle with a control section); an {"event": ...} '
+                             "line marks each change and an arrival (needs a bundle trained for endless streams)")
     stream.set_defaults(run=cmd_stream)
 
     crowd = sub.add_parser("crowd", help="many characters at once, stepped together: a motion file each",
@@ -306,7 +310,7 @@ def cmd_stream(args) -> int:
     align = _align(args)
     if args.follow and (sys.stdin is None or sys.stdin.closed):
         raise UsageError("--follow reads new prompts from stdin, and stdin is closed")
-    prompts = _read_lines(sys.stdin) if args.follow else None    # reading starts now: nothing typed is lost
+    requests = _read_lines(sys.stdin) if args.follow else None   # reading starts now: nothing typed is lost
     gen = _load_generator(args)
     if args.follow and not gen.endless:
         raise UsageError(f"--follow needs a bundle trained for endless streams; {gen.bundle.path} has no "
@@ -317,15 +321,24 @@ def cmd_stream(args) -> int:
     if align:
         print(f"mogo: aligned prompt: {frames.aligned_text!r}", file=sys.stderr, flush=True)
     out = sys.stdout
+    arrived = False
     try:
         for f in frames:
-            text = _newest(prompts)
-            if text is not None:
+            request = _pending(requests)
+            if request is not None:
                 with _warnings_as_lines():
-                    frames.set_prompt(text, align=align)
-                event = {"event": "prompt", "token": frames.tokens, "frame": f.index, "text": text,
-                         **({"aligned": frames.aligned_text} if align else {})}
+                    request.apply(frames, align=align)
+                event = {"event": "prompt" if request.control is None else "control", "token": frames.tokens,
+                         "frame": f.index}
+                if request.prompt is not None:
+                    event.update(text=request.prompt, **({"aligned": frames.aligned_text} if align else {}))
+                if request.control is not None:
+                    event["request"] = {k: (f"{len(v)} points" if k == "path" else v) for k, v in request.control.items()}
+                    arrived = False
                 out.write(json.dumps(event) + "\n")
+            if frames.arrived and not arrived:      # a goal or a path's end reached: said once
+                arrived = True
+                out.write(json.dumps({"event": "arrived", "token": frames.tokens, "frame": f.index}) + "\n")
             joints = [[round(float(c), JOINT_DECIMALS) for c in j] for j in f.joints]
             out.write(json.dumps({"frame": f.index, "time": round(f.time, 6), "joints": joints},
                                  separators=(",", ":")) + "\n")
@@ -364,16 +377,23 @@ def _read_lines(stream) -> queue.Queue:
     return lines
 
 
-def _newest(prompts: queue.Queue | None) -> str | None:
-    """The last non-blank line that came in since the last look, or None: a game that writes faster than the
-    stream steps gets its newest prompt followed, not a backlog of old ones."""
-    newest = None
-    while prompts is not None and not prompts.empty():
-        line = prompts.get_nowait()
+def _pending(lines: queue.Queue | None) -> Request | None:
+    """The requests that came in since the last look, parsed (a bad one ends the stream with its message) and
+    folded into one: a game that writes faster than the stream steps gets its newest prompt and its newest control
+    followed, not a backlog."""
+    prompt = control = None
+    while lines is not None and not lines.empty():
+        line = lines.get_nowait()
         if isinstance(line, Exception):
             raise line
-        newest = line if line.strip() else newest
-    return newest
+        if line.strip():
+            try:
+                request = parse_request(line)
+            except ValueError as e:
+                raise UsageError(f"stdin: {e}") from None
+            prompt = request.prompt if request.prompt is not None else prompt
+            control = request.control if request.control is not None else control
+    return Request(prompt, control) if prompt is not None or control is not None else None
 
 
 def cmd_info(args) -> int:

@@ -32,6 +32,7 @@ import numpy as np
 
 from .bundle.sampling import SamplingConfig, sampling_or
 from .checks import as_int
+from .control.steering import Steerable, Steering
 from .decoding import FrameMaker, Frames, check_chunk
 from .endless import StreamContext
 from .engine import FixedCacheBackend
@@ -68,16 +69,20 @@ def available_memory() -> int:
         return free
 
 
-class Character:
-    """One member of a crowd: its prompt and seed, its stream's token state (`context`) and frames (`frames`).
+class Character(Steerable):
+    """One member of a crowd: its prompt and seed, its stream's token state (`context`) and frames (`frames`), and
+    on a bundle whose model has control, where it goes (`walk_to`, `follow_path`, `steer`, `set_root`, `release`).
     Made by `Crowd.add`."""
 
     def __init__(self, crowd: "Crowd", ident: int, text: str, emb: np.ndarray, seed: int, limit: int | None,
                  record: bool):
         self.crowd, self.id, self.text, self.seed, self.limit = crowd, ident, text, seed, limit
         self.slot: int | None = None        # its place in the crowd (rows slot * rows ...), None once removed
-        self.context = StreamContext(crowd.policy, emb, seed, crowd.gen.bundle.manifest.streaming)
+        control = crowd.backend.control
+        self.context = StreamContext(crowd.policy, emb, seed, crowd.gen.bundle.manifest.streaming,
+                                     control.dim if control else 0)
         self.frames = FrameMaker(crowd.gen.dims, crowd.gen.skeleton, crowd.chunk)
+        self.steering = Steering(control, crowd.gen.dims, self.context) if control else None
         self.switches: deque[tuple[int, str]] = deque(maxlen=SWITCH_HISTORY)
         self.recorded: tuple[list, list, list] | None = ([], [], []) if record else None   # tokens, features, joints
 
@@ -98,6 +103,9 @@ class Character:
     def set_prompt(self, text: str) -> None:
         """Follow `text` from this character's next token on (frames already decoded are not changed)."""
         self.crowd.set_prompt(self, text)
+
+    def _check_open(self) -> None:
+        self.crowd._slot(self)                  # a character removed from its crowd goes nowhere
 
     def motion(self) -> Motion:
         """Everything this character has done and been decoded so far, as one Motion (added with record=True)."""
@@ -237,7 +245,7 @@ class Crowd:
             self._remove(c)
         return out
 
-    def _pick(self, chars: list[Character], plans: list[tuple[np.ndarray, bool]]) -> np.ndarray:
+    def _pick(self, chars: list[Character], plans: list[tuple[np.ndarray, np.ndarray | None, bool]]) -> np.ndarray:
         """Feed every character its planned tokens and pick its next tokens (C, L).
 
         A plan of more than one token is a rebuild from an empty context: its tokens but the last run on a scratch
@@ -246,25 +254,31 @@ class Crowd:
         policy = self.policy
         slots = np.array([self._slot(c) for c in chars])
         rows = (slots[:, None] * policy.rows + np.arange(policy.rows)).ravel()
-        sizes = np.array([len(tokens) for tokens, _ in plans])
+        sizes = np.array([len(tokens) for tokens, _, _ in plans])
+        controlled = self.backend.control is not None
+
+        def control_at(members, k):      # the controls of position k of each member's feed, for its rows
+            return policy.feed(np.stack([plans[m][1][k] for m in members])) if controlled else None
+
         for size in sorted(set(sizes[sizes > 1].tolist())):
             group = np.flatnonzero(sizes == size)
             scratch = self._scratch(len(group) * policy.rows)
             emb = np.concatenate([chars[m].context.rows_emb for m in group])
             for k in range(size - 1):
                 self.backend.step_in_place(emb, policy.feed(np.stack([plans[m][0][k] for m in group])),
-                                           np.full(len(emb), k, np.int64), scratch)
+                                           np.full(len(emb), k, np.int64), scratch, control_at(group, k))
             group_rows = (slots[group][:, None] * policy.rows + np.arange(policy.rows)).ravel()
             for c, fresh in zip(self.cache, scratch):
                 c[group_rows] = fresh
         emb = np.concatenate([c.context.rows_emb for c in chars])
-        last = policy.feed(np.stack([tokens[-1] for tokens, _ in plans]))
+        last = policy.feed(np.stack([tokens[-1] for tokens, _, _ in plans]))
         position = policy.feed(np.array([c.context.cached for c in chars], np.int64))
+        control = control_at(range(len(chars)), -1)
         if len(chars) == len(self.characters):      # the crowd's own cache, written in place
-            logits = self.backend.step_in_place(emb, last, position, self.cache)
+            logits = self.backend.step_in_place(emb, last, position, self.cache, control)
         else:                                       # a retry after END: fresh contexts, then their rows
             scratch = self._scratch(len(rows))
-            logits = self.backend.step_in_place(emb, last, position, scratch)
+            logits = self.backend.step_in_place(emb, last, position, scratch, control)
             for c, fresh in zip(self.cache, scratch):
                 c[rows] = fresh
         return policy.pick(logits[:, 0], np.array([c.context.may_end for c in chars]),
@@ -282,6 +296,8 @@ class Crowd:
         """Every character's due decoder window, one decoder call per window length."""
         groups: dict[int, list[Character]] = {}
         for c in self.characters:
+            if c.steering is not None and c.steering.target is not None:
+                c.frames.chunk = 1      # its next token's control reads the pose the frames so far fix
             n = c.frames.push(c.context.last)
             n = n or c.frames.due(final=c.done)
             if n:
@@ -293,6 +309,8 @@ class Crowd:
             features = self.backend.decode(np.stack([c.frames.window(n) for c in chars]))
             for c, f in zip(chars, features):
                 out[c] = c.frames.frames_from(f)
+                if c.steering is not None:
+                    out[c].joints = c.steering.update(out[c].index, out[c].joints, c.frames.joints)
                 if c.recorded is not None:
                     c.recorded[1].append(out[c].features)
                     c.recorded[2].append(out[c].joints)

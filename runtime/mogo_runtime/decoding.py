@@ -22,6 +22,7 @@ from .bundle.sampling import SamplingConfig
 from .bundle.sections import ModelDims, StreamingSpec
 from .checks import as_int
 from .clock import NO_CLOCK, StageClock
+from .control.steering import Steering
 from .endless import EndlessLoop
 from .kinematics.features import recover_from_ric
 from .kinematics.frames import FootLock, FrameJoints
@@ -239,26 +240,32 @@ class GenerationTask:
             return [Generated(tok, f, FootLock(self.skeleton).push(recover_from_ric(f, J), f))
                     for tok, f in zip(token_seqs, features)]
 
-    def stream(self, text_emb: np.ndarray, seed: int, chunk: int = 4,
-               loop: EndlessLoop | None = None) -> Iterator[Frames]:
+    def stream(self, text_emb: np.ndarray, seed: int, chunk: int = 4, loop: EndlessLoop | None = None,
+               steering: Steering | None = None) -> Iterator[Frames]:
         """One prompt's frames as its tokens are sampled, a chunk at a time. With `loop` (an EndlessLoop of this
-        prompt) the stream follows that loop's prompt changes."""
+        prompt) the stream follows that loop's prompt changes; with `steering` (of that loop's stream) it goes where
+        the steering's target leads, and makes its frames every token while it has a target."""
         maker = FrameMaker(self.backend.dims, self.skeleton, chunk)     # checks chunk now, not at the first frame
-        return self._stream(self.steps(text_emb, [seed], loop), maker)
+        return self._stream(self.steps(text_emb, [seed], loop), maker, steering)
 
-    def _stream(self, steps, maker: FrameMaker) -> Iterator[Frames]:
+    def _stream(self, steps, maker: FrameMaker, steering: Steering | None = None) -> Iterator[Frames]:
         for picked, alive in steps:
             if not alive[0]:
                 break
+            if steering is not None and steering.target is not None:
+                maker.chunk = 1             # the next token's control reads the pose the frames so far fix
             n = maker.push(picked[0])
             if n:
-                yield self._frames(maker, n)
+                yield self._frames(maker, n, steering)
         n = maker.due(final=True)
         if n:
-            yield self._frames(maker, n)
+            yield self._frames(maker, n, steering)
 
-    def _frames(self, maker: FrameMaker, n: int) -> Frames:
+    def _frames(self, maker: FrameMaker, n: int, steering: Steering | None = None) -> Frames:
         with self.clock("decode"):
             features = self.backend.decode(maker.window(n)[None])[0]
-        return maker.frames_from(features, self.clock)
+        frames = maker.frames_from(features, self.clock)
+        if steering is not None:
+            frames.joints = steering.update(frames.index, frames.joints, maker.joints)
+        return frames
 

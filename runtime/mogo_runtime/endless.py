@@ -31,10 +31,14 @@ class StreamContext:
     """One endless stream's token state: the step rows it is conditioned on, its random generator, its recent
     tokens, and what its next step feeds (`plan`), given the pick it then `accept`s."""
 
-    def __init__(self, policy: StepPolicy, emb: np.ndarray, seed: int, spec: StreamingSpec):
+    def __init__(self, policy: StepPolicy, emb: np.ndarray, seed: int, spec: StreamingSpec, control_dim: int = 0):
         self.policy, self.window, self.span = policy, spec.window, spec.window + spec.refresh
         self.rng = np.random.Generator(np.random.PCG64(seed))
         self.history = np.zeros((self.span, policy.dims.num_levels), np.int64)   # token t at t % span
+        # with control (a model that has it): the control each token was picked with, as the history holds tokens,
+        # so a rebuilt context reads what it read the first time; and the control of the next token (`steer`)
+        self.controls = np.zeros((self.span, control_dim), np.float32) if control_dim else None
+        self.control = np.zeros(control_dim, np.float32) if control_dim else None
         self.last: np.ndarray | None = None      # the last token picked
         self.count = 0                           # tokens picked
         self.cached = 0                          # motion tokens in the context after its prefix
@@ -52,20 +56,27 @@ class StreamContext:
         """END may be picked once the motion has a token: never as a motion's first, so never twice in a row."""
         return self.motion >= 1
 
-    def plan(self) -> tuple[np.ndarray, bool]:
-        """-> (the tokens the next step feeds (S, L), whether they start a new context). A new context is BOS and
-        the last n picked tokens: n = 0 after a new prompt or END, `window` once the context holds window +
-        refresh; otherwise the step feeds the last pick. The last token fed sits in cache slot `self.cached`."""
+    def steer(self, control: np.ndarray) -> None:
+        """The control vector (control_dim,) the next token is picked with (mogo_runtime/control)."""
+        self.control = np.asarray(control, np.float32)
+
+    def plan(self) -> tuple[np.ndarray, np.ndarray | None, bool]:
+        """-> (the tokens the next step feeds (S, L), their controls (S, control_dim) or None without control,
+        whether they start a new context). A new context is BOS and the last n picked tokens: n = 0 after a new
+        prompt or END, `window` once the context holds window + refresh; otherwise the step feeds the last pick.
+        Position i of the feed picks token count - n + i, so it reads that token's control (the last: `control`).
+        The last token fed sits in cache slot `self.cached`."""
         if not (self.restart or self.cached == self.span):
             self.cached += 1
-            return self.last[None], False
+            return self.last[None], None if self.control is None else self.control[None], False
         n = 0 if self.restart else self.window
         ring = (self.count - n + np.arange(n)) % self.span                     # the last n, oldest first
         bos = np.full((1, self.history.shape[1]), self.policy.dims.bos_id, np.int64)
         self.cached, self.restart = n, False
         if n == 0:
             self.motion = 0
-        return np.concatenate([bos, self.history[ring]]), True
+        controls = None if self.control is None else np.concatenate([self.controls[ring], self.control[None]])
+        return np.concatenate([bos, self.history[ring]]), controls, True
 
     def accept(self, picked: np.ndarray) -> bool:
         """The step's pick (L,) -> whether it is the stream's next token. END (level 0) is not: the motion ended, the
@@ -74,6 +85,8 @@ class StreamContext:
             self.restart, self.restarts = True, self.restarts + 1
             return False
         self.history[self.count % self.span] = self.last = picked
+        if self.controls is not None:
+            self.controls[self.count % self.span] = self.control
         self.count += 1
         self.motion += 1
         return True
@@ -86,7 +99,8 @@ class EndlessLoop:
     def __init__(self, backend, text_emb: np.ndarray, sampling, seeds: list[int], spec: StreamingSpec,
                  clock=None):
         self.backend, self.policy, self.clock = backend, StepPolicy(sampling, backend.dims), clock or NO_CLOCK
-        self.streams = [StreamContext(self.policy, e[None], s, spec) for e, s in zip(text_emb, seeds)]
+        control_dim = backend.control.dim if backend.control else 0
+        self.streams = [StreamContext(self.policy, e[None], s, spec, control_dim) for e, s in zip(text_emb, seeds)]
         self.past: list = [None] * len(self.streams)
         self._lock = threading.Lock()     # a step and a prompt switch never interleave
 
@@ -118,11 +132,12 @@ class EndlessLoop:
 
     def _step(self, b: int, stream: StreamContext) -> np.ndarray:
         for _ in range(2):             # a pick of END is picked again from the restarted context, END forbidden
-            tokens, fresh = stream.plan()
+            tokens, controls, fresh = stream.plan()
             if fresh:
                 self.past[b] = self.backend.empty_past(self.policy.rows)
             with self.clock("step"):
-                logits, self.past[b] = self.backend.step(stream.rows_emb, self.policy.feed(tokens[None]), self.past[b])
+                logits, self.past[b] = self.backend.step(stream.rows_emb, self.policy.feed(tokens[None]), self.past[b],
+                                                         None if controls is None else self.policy.feed(controls[None]))
             with self.clock("sample"):
                 picked = self.policy.pick(logits[:, -1], np.array([stream.may_end]), [stream.rng])[0]
             if stream.accept(picked):

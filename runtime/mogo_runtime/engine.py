@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bundle.folder import Bundle
-from .bundle.sections import GRAPHS, BundleError, ModelDims
+from .bundle.sections import GRAPHS, BundleError, ControlSpec, ModelDims
 from .checks import shown
 from .text import TextEncoderSession, check_threads, session_options
 
@@ -47,6 +47,7 @@ class OrtBackend:
         self.bundle, self.variant, self.threads = bundle, variant, check_threads(threads)
         self.dims: ModelDims = bundle.dims
         manifest = bundle.manifest
+        self.control: ControlSpec | None = manifest.control     # the step graph's control input; None: none
         self.one_row = manifest.row_by_row(variant)       # graphs that run one row per call
         files = manifest.graph_file("text_encoder", variant).file, manifest.text_encoder.tokenizer
         try:
@@ -81,16 +82,34 @@ class OrtBackend:
                           np.float32)] * len(self.past_names)
         return [empty] * rows if "step" in self.one_row else empty
 
-    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: list):
-        """-> (logits (B, S, L, K + 1), the next past)."""
+    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: list, control: np.ndarray | None = None):
+        """-> (logits (B, S, L, K + 1), the next past). `control` (B, S, control.dim): see `controls`."""
+        control = self.controls(tokens, control)
         if "step" in self.one_row:
-            outs = [self._step(text_emb[r:r + 1], tokens[r:r + 1], past[r]) for r in range(len(tokens))]
+            outs = [self._step(text_emb[r:r + 1], tokens[r:r + 1], past[r], None if control is None else
+                               control[r:r + 1]) for r in range(len(tokens))]
             return np.concatenate([logits for logits, _ in outs]), [presents for _, presents in outs]
-        return self._step(text_emb, tokens, past)
+        return self._step(text_emb, tokens, past, control)
 
-    def _step(self, text_emb: np.ndarray, tokens: np.ndarray, past: list[np.ndarray]):
+    def controls(self, tokens: np.ndarray, control: np.ndarray | None) -> np.ndarray | None:
+        """The control input of a step on `tokens` (B, S, L): `control` (B, S, control.dim) checked, zeros ("no
+        control") for None; None for a model without control, which takes none."""
+        if self.control is None:
+            if control is not None:
+                raise ValueError("this bundle's model was trained without control (its manifest has no 'control' "
+                                 "section)")
+            return None
+        want = (*tokens.shape[:2], self.control.dim)
+        if control is None:
+            return np.zeros(want, np.float32)
+        if control.shape != want:
+            raise ValueError(f"control must be {want} for tokens {tokens.shape}, got {control.shape}")
+        return np.ascontiguousarray(control, dtype=np.float32)
+
+    def _step(self, text_emb: np.ndarray, tokens: np.ndarray, past: list[np.ndarray], control: np.ndarray | None):
         feed = {"text_embedding": np.ascontiguousarray(text_emb, dtype=np.float32),
-                "tokens": np.ascontiguousarray(tokens, dtype=np.int64), **dict(zip(self.past_names, past))}
+                "tokens": np.ascontiguousarray(tokens, dtype=np.int64),
+                **({} if control is None else {"control": control}), **dict(zip(self.past_names, past))}
         out = self._run("step", self.step_session.run, self.output_names, feed)
         (rows, steps), d = tokens.shape[:2], self.dims
         # what the graph returns is held to the manifest every step: a cache that grew by more than the steps fed (or
@@ -176,19 +195,21 @@ class FixedCacheBackend(OrtBackend):
     def empty_past(self, rows: int) -> FixedCache:
         return FixedCache([np.zeros((rows,) + self.cache_shape, np.float32) for _ in self.past_names], 0)
 
-    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: FixedCache):
+    def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: FixedCache, control: np.ndarray | None = None):
         """-> (logits (B, S, L, K + 1), the past one step on). `past`'s arrays are written in place."""
         rows, steps = tokens.shape[:2]
         if past.length + steps > self.capacity:
             raise ValueError(f"the portable step's cache holds {self.capacity} steps; {past.length} are cached and "
                              f"{steps} more were fed (the manifest's portable.capacity covers the generation loop)")
-        logits = [self.step_in_place(text_emb, tokens[:, s], np.full(rows, past.length + s, np.int64), past.arrays)
-                  for s in range(steps)]
+        control = self.controls(tokens, control)
+        logits = [self.step_in_place(text_emb, tokens[:, s], np.full(rows, past.length + s, np.int64), past.arrays,
+                                     None if control is None else control[:, s]) for s in range(steps)]
         return np.concatenate(logits, axis=1), FixedCache(past.arrays, past.length + steps)
 
     def step_in_place(self, text_emb: np.ndarray, tokens: np.ndarray, position: np.ndarray,
-                      cache: list[np.ndarray]) -> np.ndarray:
-        """One call: tokens (rows, L) at cache slot `position` (rows,) -> logits (rows, 1, L, K + 1).
+                      cache: list[np.ndarray], control: np.ndarray | None = None) -> np.ndarray:
+        """One call: tokens (rows, L) at cache slot `position` (rows,), control (rows, control.dim) -> logits
+        (rows, 1, L, K + 1).
 
         Each cache array (rows, L * n_heads, capacity, head_dim), C-contiguous float32, is bound as both the past
         and the present, so the graph's ScatterElements writes the new slot where it is instead of copying the
@@ -199,6 +220,9 @@ class FixedCacheBackend(OrtBackend):
         binding.bind_cpu_input("text_embedding", np.ascontiguousarray(text_emb, dtype=np.float32))
         binding.bind_cpu_input("tokens", np.ascontiguousarray(tokens[:, None], dtype=np.int64))
         binding.bind_cpu_input("position", np.ascontiguousarray(position, dtype=np.int64))
+        control = self.controls(tokens[:, None], None if control is None else control[:, None])
+        if control is not None:
+            binding.bind_cpu_input("control", control)
         logits = np.empty((len(tokens), 1, self.dims.num_levels, self.dims.codebook_size + 1), np.float32)
         # every output bound to our arrays: fetching outputs from the binding would copy the caches back
         binding.bind_output("logits", "cpu", 0, np.float32, list(logits.shape), logits.ctypes.data)

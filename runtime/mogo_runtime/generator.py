@@ -27,6 +27,7 @@ from .bundle.folder import Bundle
 from .bundle.sampling import SamplingConfig, sampling_or
 from .checks import as_real, shown
 from .clock import NO_CLOCK, StageClock
+from .control.steering import Steerable, Steering
 from .decoding import Frames, Generated, GenerationTask
 from .engine import open_backend
 from .outputs.motion import Motion
@@ -52,9 +53,10 @@ class Frame:
 SWITCH_HISTORY = 10_000   # ~1 MB of prompt switches kept per stream (a switch every 4 s: 11 hours)
 
 
-class FrameStream:
+class FrameStream(Steerable):
     """What `MotionGenerator.stream` returns: an iterator of Frames, the prompt it follows now and its aligned
-    text, and, on a bundle trained for endless streams, `set_prompt` to change what the character does.
+    text, and, on a bundle trained for endless streams, `set_prompt` to change what the character does; on one whose
+    model has control, where it goes too (`walk_to`, `follow_path`, `steer`, `set_root`, `release`: control/).
 
     `condition(texts, align)` -> (embeddings, aligned texts) is how the generator conditions on a prompt."""
 
@@ -62,7 +64,10 @@ class FrameStream:
                  aligned_text: str | None, condition: Callable):
         self.text, self.aligned_text, self._condition = text, aligned_text, condition
         self._loop = task.loop(emb, [seed]) if task.streaming is not None else None
-        self._frames = _frames(task.stream(emb, seed, chunk, self._loop), task.backend.dims.fps)
+        control = task.backend.control
+        self.steering = Steering(control, task.backend.dims, self._loop.streams[0]) \
+            if control is not None and self._loop is not None else None
+        self._frames = _frames(task.stream(emb, seed, chunk, self._loop, self.steering), task.backend.dims.fps)
         self._closed = False
         # (token, text, aligned text) of the last SWITCH_HISTORY set_prompt calls: a stream runs for days
         self.switches: deque[tuple[int, str, str | None]] = deque(maxlen=SWITCH_HISTORY)
@@ -101,6 +106,14 @@ class FrameStream:
         token = self._loop.set_prompt(emb)
         self.text, self.aligned_text = text, aligned[0]
         self.switches.append((token, text, aligned[0]))
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ValueError("this stream is closed (close(), or its motion ended): it goes nowhere any more")
+
+    def _why_not(self) -> str:
+        return (super()._why_not() if self._loop is not None else "this bundle was not trained for endless streams "
+                "(its manifest has no 'streaming' section), so its streams cannot be steered")
 
     def close(self) -> None:
         self._closed = True

@@ -36,7 +36,8 @@ def feats(t, dim=263, seed=0):
 
 
 def test_loads_the_procedural_dataset(tmp_path):
-    root = P.build_dataset(tmp_path / "proc", num_clips=12, seed=2, progress=False, workers=1, long_sequences=0)
+    root = P.build_dataset(tmp_path / "proc", num_clips=12, seed=2, progress=False, workers=1, long_sequences=0,
+                           path_sequences=0)
     sizes = {}
     for split in ("train", "val", "test"):
         ds = MotionDataset.load(root, split)
@@ -57,9 +58,10 @@ def test_loads_the_procedural_dataset(tmp_path):
 
 
 def test_long_sequences_load_as_their_segments(tmp_path):
-    root = P.build_dataset(tmp_path / "proc", num_clips=10, seed=5, progress=False, workers=1, long_sequences=3)
+    root = P.build_dataset(tmp_path / "proc", num_clips=10, seed=5, progress=False, workers=1, long_sequences=2,
+                           path_sequences=1)
     table = json.loads((root / "dataset.json").read_text())["segments"]
-    assert sorted(table) == ["000010", "000011", "000012"]
+    assert sorted(table) == ["000010", "000011", "000012"]  # two long sequences, then a path sequence
     seen = []
     for split in ("train", "val", "test"):
         ds = MotionDataset.load(root, split)

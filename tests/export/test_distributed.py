@@ -44,7 +44,7 @@ from mogo_export.cli import main
 torch.set_default_dtype(torch.float64)
 tiny = presets.PRESETS["tiny"]
 presets.PRESETS["tiny"] = dataclasses.replace(
-    tiny, transformer={**tiny.transformer, "dropout": 0.0, "cond_drop_prob": 0.0},
+    tiny, transformer={**tiny.transformer, "dropout": 0.0, "cond_drop_prob": 0.0, "control_drop_prob": 0.0},
     streaming=dataclasses.replace(tiny.streaming, windows=1))
 if os.environ.get("STALL_AT"):
     at, marker = os.environ["STALL_AT"].split(":", 1)

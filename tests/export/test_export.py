@@ -39,10 +39,11 @@ def test_step_graph_matches_torch(tiny, batch, steps, past):
     if past == 0:
         tokens[:, 0] = c.bos_id  # the first call carries the PnQ prefix
     pasts = [torch.randn(batch, c.num_levels * H, past, hd, generator=g) for _ in range(2 * c.n_layers)]
+    control = torch.randn(batch, steps, c.control_dim, generator=g)          # the tiny preset has control
     with torch.no_grad():
-        want = StepGraph(tr)(text, tokens, *pasts)
+        want = StepGraph(tr)(text, tokens, control, *pasts)
     sess = session(tiny["bundle"] / "step.onnx")
-    feed = {"text_embedding": text.numpy(), "tokens": tokens.numpy()}
+    feed = {"text_embedding": text.numpy(), "tokens": tokens.numpy(), "control": control.numpy()}
     for i in range(c.n_layers):
         feed[f"past_key_values.{i}.key"] = pasts[2 * i].numpy()
         feed[f"past_key_values.{i}.value"] = pasts[2 * i + 1].numpy()

@@ -37,7 +37,7 @@ def session(model):
 
 
 def portable_feed(tr, capacity, batch, position, seed):
-    """Random text, one step of tokens (BOS at position 0) and a random full cache, as numpy."""
+    """Random text, one step of tokens (BOS at position 0), a random control and a random full cache."""
     c = tr.cfg
     g = torch.Generator().manual_seed(seed)
     text = torch.randn(batch, c.text_dim, generator=g)
@@ -46,7 +46,8 @@ def portable_feed(tr, capacity, batch, position, seed):
         tokens[:] = c.bos_id
     cache = [torch.randn(batch, c.num_levels * c.n_heads, capacity, c.d_model // c.n_heads, generator=g)
              for _ in range(2 * c.n_layers)]
-    return text, tokens, cache
+    control = torch.randn(batch, 1, c.control_dim, generator=g)               # the tiny preset has control
+    return text, tokens, control, cache
 
 
 def graph_feed(path: str, tiny, rng) -> dict:
@@ -73,12 +74,12 @@ def test_the_fixed_cache_step_is_the_torch_step_over_the_first_position_slots(ti
     tr = tiny["tr"]
     manifest = read_manifest(tiny["bundle"])
     cap = manifest.portable.capacity
-    text, tokens, cache = portable_feed(tr, cap, batch, position, seed=batch * 100 + position)
+    text, tokens, control, cache = portable_feed(tr, cap, batch, position, seed=batch * 100 + position)
     with torch.no_grad():
-        want = StepGraph(tr)(text, tokens, *(p[:, :, :position] for p in cache))
-        module = FixedCacheStepGraph(tr, cap)(text, tokens, torch.full((batch,), position), *cache)
+        want = StepGraph(tr)(text, tokens, control, *(p[:, :, :position] for p in cache))
+        module = FixedCacheStepGraph(tr, cap)(text, tokens, control, torch.full((batch,), position), *cache)
     feed = {"text_embedding": text.numpy(), "tokens": tokens.numpy(), "position": np.full(batch, position),
-            **dict(zip(manifest.past_names, (p.numpy() for p in cache)))}
+            "control": control.numpy(), **dict(zip(manifest.past_names, (p.numpy() for p in cache)))}
     got = session(tiny["bundle"] / "step.portable.onnx").run(None, feed)
     for name, out in (("onnx", got), ("torch module", [o.numpy() for o in module])):
         err_logits = np.abs(out[0] - want[0].numpy()).max()
@@ -95,9 +96,9 @@ def test_a_position_past_the_capacity_is_an_error_not_a_lost_write(tiny):
     tr = tiny["tr"]
     manifest = read_manifest(tiny["bundle"])
     cap = manifest.portable.capacity
-    text, tokens, cache = portable_feed(tr, cap, 1, 0, seed=0)
+    text, tokens, control, cache = portable_feed(tr, cap, 1, 0, seed=0)
     feed = {"text_embedding": text.numpy(), "tokens": tokens.numpy(), "position": np.array([cap]),
-            **dict(zip(manifest.past_names, (p.numpy() for p in cache)))}
+            "control": control.numpy(), **dict(zip(manifest.past_names, (p.numpy() for p in cache)))}
     with pytest.raises(Exception, match="(?i)index|indices"):
         session(tiny["bundle"] / "step.portable.onnx").run(None, feed)
 
@@ -115,7 +116,7 @@ def test_the_portable_graphs_follow_the_rules_and_the_manifest_gives_every_size(
     step = manifest["portable"]["step"]
     for spec in step["inputs"] + step["outputs"]:
         assert spec["shape"][0] == "batch" and all(isinstance(d, int) for d in spec["shape"][1:]), spec
-    assert [s["name"] for s in step["inputs"][:3]] == ["text_embedding", "tokens", "position"]
+    assert [s["name"] for s in step["inputs"][:4]] == ["text_embedding", "tokens", "control", "position"]
     # the dynamic step (opset 20, int8 ops in its int8 file) is not portable: the rules would say why
     assert portable_problems(onnx.load(str(bundle.graph_path("step", "int8"))), PORTABLE_OPSET)
 

@@ -1,5 +1,5 @@
 """The procedural HumanML3D-layout dataset: determinism, layout, people-like motion, captions, long
-sequences, and every family doing what its captions say."""
+sequences, path sequences, and every family (and path segment) doing what its captions say."""
 import json
 import re
 
@@ -9,7 +9,8 @@ import pytest
 from mogo_export.data import procedural as P
 from mogo_export.data.dataset import read_captions
 from mogo_export.data.humanml3d import extract_features
-from mogo_export.data.procedural import captions, clips as C, families, locomotion, sequences as S, writer
+from mogo_export.data.timelines import read_timelines
+from mogo_export.data.procedural import captions, clips as C, families, locomotion, paths as PT, sequences as S, writer
 from mogo_export.data.procedural.action import FULL_BUDGET, TimeBudget
 from mogo_export.data.procedural.grounding import pose_to_joints
 from mogo_export.data.procedural.pose import FPS, MAX_SECONDS, Pose
@@ -25,12 +26,13 @@ BONES = np.arange(1, HUMANML3D.num_joints)
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     # 27 clips: every 5th is a sequence, so the first 21 singles cover all 21 families; then 27 // 10 = 2
-    # long sequences (ids 000027, 000028)
+    # long sequences (ids 000027, 000028) and 2 path sequences (000029, 000030)
     return P.build_dataset(tmp_path_factory.mktemp("proc") / "ds", num_clips=27, seed=7, progress=False, workers=2)
 
 
 SHORT = [f"{i:06d}" for i in range(27)]
 LONG = ["000027", "000028"]
+PATH = ["000029", "000030"]
 
 
 @pytest.fixture(scope="module")
@@ -59,25 +61,33 @@ def test_same_seed_same_bytes_whatever_the_workers(tmp_path):
     a = P.build_dataset(tmp_path / "a", num_clips=20, seed=3, progress=False, workers=1)
     b = P.build_dataset(tmp_path / "b", num_clips=20, seed=3, progress=False, workers=2)
     fa, fb = _files(a), _files(b)
-    assert len(fa) == 4 * (20 + 2) + 3 + 2 + 1  # 20 clips and 2 long sequences
+    assert len(fa) == 4 * (20 + 2 + 2) + 3 + 2 + 1  # 20 clips, 2 long sequences and 2 path sequences
     assert fa.keys() == fb.keys()
     assert [k for k in fa if fa[k] != fb[k]] == []
     c = P.build_dataset(tmp_path / "c", num_clips=20, seed=4, progress=False, workers=1)
     assert _files(c)["new_joint_vecs/000000.npy"] != fa["new_joint_vecs/000000.npy"]
-    # long sequences are added: without them the short clips, their split and Mean/Std are the same files
-    d = _files(P.build_dataset(tmp_path / "d", num_clips=20, seed=3, progress=False, workers=1, long_sequences=0))
+    # long and path sequences are added: without them the short clips, their split and Mean/Std are the
+    # same files
+    d = _files(P.build_dataset(tmp_path / "d", num_clips=20, seed=3, progress=False, workers=1, long_sequences=0,
+                               path_sequences=0))
     splits = ("train.txt", "val.txt", "test.txt")
     assert len(d) == 4 * 20 + 6
     assert [k for k in d if k not in splits + ("dataset.json",) and d[k] != fa[k]] == []
     for name in splits:
-        assert set(d[name].split()) == set(fa[name].split()) - {b"000020", b"000021"}
+        assert set(d[name].split()) == set(fa[name].split()) - {b"000020", b"000021", b"000022", b"000023"}
+    # a path sequence depends on its index among the path sequences only: without the long sequences the
+    # same files, two ids earlier
+    e = _files(P.build_dataset(tmp_path / "e", num_clips=20, seed=3, progress=False, workers=1, long_sequences=0))
+    for sub, ext in (("new_joint_vecs", "npy"), ("new_joints", "npy"), ("texts", "txt"), ("labels", "txt")):
+        for i in (0, 1):
+            assert e[f"{sub}/{20 + i:06d}.{ext}"] == fa[f"{sub}/{22 + i:06d}.{ext}"]
 
 
 def test_every_family_present_and_labelled(built):
     labels = {p.stem: p.read_text().strip() for p in (built / "labels").glob("*.txt")}
-    assert sorted(labels) == SHORT + LONG
+    assert sorted(labels) == SHORT + LONG + PATH
     info = json.loads((built / "dataset.json").read_text())
-    for i in LONG:  # seq:<families in order>, those of its segments
+    for i in LONG + PATH:  # seq:<families in order>, those of its segments
         assert labels.pop(i) == "seq:" + "+".join(s["family"] for s in info["segments"][i])
     singles = {v for v in labels.values() if not v.startswith("seq:")}
     assert singles == set(FAMILIES)
@@ -88,19 +98,21 @@ def test_every_family_present_and_labelled(built):
         assert first in FAMILIES and second in FAMILIES and first != second
     assert info["label_counts"] == {k: list(labels.values()).count(k) for k in set(labels.values())}
     assert info["families"] == FAMILIES and info["seed"] == 7 and info["num_clips"] == 27
-    assert info["num_long_sequences"] == 2 and sorted(info["segments"]) == LONG
+    assert info["num_long_sequences"] == 2 and info["num_path_sequences"] == 2
+    assert sorted(info["segments"]) == LONG + PATH
+    assert sum(info["path_family_counts"].values()) == sum(len(info["segments"][i]) for i in PATH)
     assert info["fps"] == 20.0 and info["skeleton"]["name"] == "humanml3d" and info["feature_dim"] == 263
 
 
 def test_layout_shapes_splits_and_stats(built):
     ids = sorted(p.stem for p in (built / "new_joint_vecs").glob("*.npy"))
-    assert ids == SHORT + LONG
+    assert ids == SHORT + LONG + PATH
     for i in ids:
         f = np.load(built / "new_joint_vecs" / f"{i}.npy")
         j = np.load(built / "new_joints" / f"{i}.npy")
         assert f.dtype == np.float32 and j.dtype == np.float32
         assert f.shape == (len(j) - 1, 263) and j.shape[1:] == (22, 3)
-        if i in LONG:
+        if i in LONG + PATH:
             assert 400 <= len(j) <= 1200  # 20..60 s
         else:
             assert 41 <= len(j) <= 200  # 2..10 s at 20 fps; features keep T2M's 40 <= T < 200
@@ -108,11 +120,12 @@ def test_layout_shapes_splits_and_stats(built):
         assert abs(j[..., 1].min()) < 1e-6  # HumanML3D puts the lowest joint of the clip on the floor
     splits = {s: (built / f"{s}.txt").read_text().split() for s in ("train", "val", "test")}
     assert sorted(sum(splits.values(), [])) == ids
-    # 80/15/5 of 27, rounded, and of the 2 long sequences (split apart from them: both in train)
-    assert [len(set(v) - set(LONG)) for v in splits.values()] == [22, 4, 1] and set(LONG) <= set(splits["train"])
+    # 80/15/5 of 27, rounded, and of the 2 long and 2 path sequences (split apart from them: all in train)
+    assert [len(set(v) - set(LONG + PATH)) for v in splits.values()] == [22, 4, 1]
+    assert set(LONG + PATH) <= set(splits["train"])
     mean, std = np.load(built / "Mean.npy"), np.load(built / "Std.npy")
     train = np.concatenate([np.load(built / "new_joint_vecs" / f"{i}.npy") for i in splits["train"]
-                            if i not in LONG]).astype(np.float64)  # the statistics leave long sequences out
+                            if i in SHORT]).astype(np.float64)  # the statistics leave long and path sequences out
     np.testing.assert_allclose(mean, train.mean(0), rtol=1e-5, atol=1e-6)
     for name, sl in FeatureLayout(22).slices().items():  # HumanML3D: one std per feature group
         np.testing.assert_allclose(std[sl], train.std(0)[sl].mean(), rtol=1e-5, err_msg=name)
@@ -129,7 +142,7 @@ def test_joints_file_is_what_the_features_describe(built):
         j = np.load(built / "new_joints" / p.name.replace(".txt", ".npy"))
         np.testing.assert_allclose(recover_from_ric(f, 22), j[:-1], atol=1e-4)
         checked += 1
-    assert checked == 29 and turning >= 2
+    assert checked == 31 and turning >= 2
 
 
 def test_bone_lengths_are_the_skeletons(clips, built):
@@ -240,7 +253,8 @@ def test_captions(built):
             assert 3 <= len(caps) <= 4 and whole == caps
             assert all(_sided(label, c.text) for c in caps), (label, caps)
             continue
-        # a long sequence: 1-2 captions of the whole, then one per segment, timed as dataset.json's frames
+        # a long or path sequence: 1-2 captions of the whole, then one per segment, timed as dataset.json's
+        # frames
         segments = info["segments"][p.stem]
         assert 1 <= len(whole) <= 2 and caps[len(whole):] == caps[-len(segments):]
         for c, seg in zip(caps[len(whole):], segments):
@@ -479,3 +493,206 @@ def test_long_sequences_tile_and_each_segment_does_what_its_caption_says():
             facts = motion_facts(j[s.start:s.end])
             broken += _broken(s.family, s.params, facts, f"long [31, {i}] frames [{s.start}, {s.end})")
     assert not broken, "\n".join(broken)
+
+
+# --- path sequences: what a game's locomotion controller asks for ------------------------------------------
+
+PATH_FAMILIES = {"walk": {"walk_forward", "walk_circle"}, "run": {"run"}, "backpedal": {"walk_backward"},
+                 "sidestep": {"sidestep_left", "sidestep_right"}, "diagonal": {"walk_forward"},
+                 "turn": {"turn_left", "turn_right"}, "stand": {"stand_idle"}}
+
+
+@pytest.fixture(scope="module")
+def path_clips():
+    """6 path sequences straight from the generator, and their joints as the features give them back."""
+    return [(clip, through_features(clip.joints))
+            for clip in (PT.generate_path_sequence(np.random.default_rng([41, i])) for i in range(6))]
+
+
+def _facing(j):
+    across = (j[:, 2] - j[:, 1]) + (j[:, 17] - j[:, 16])  # as motion_facts: the hips and the shoulders
+    return np.unwrap(np.arctan2(across[:, 2], -across[:, 0]))
+
+
+def gait_motion(j, cadence):
+    """Per frame, over the gait cycle (two steps) centred on it: root velocity along the facing and to its
+    left (m/s; along the path: on a curve the cycle's chord is scaled up to its arc), and the turning rate
+    (deg/s, > 0 left). Entry k is frame k + h, h half a cycle."""
+    h = max(1, int(round(FPS / cadence)))
+    face = _facing(j)
+    turned = face[2 * h:] - face[:-2 * h]
+    arc = np.where(np.abs(turned) > 1e-6, (turned / 2) / np.sin(turned / 2 + 1e-12), 1.0)
+    v = (j[2 * h:, 0, [0, 2]] - j[:-2 * h, 0, [0, 2]]) * (FPS / (2 * h) * arc)[:, None]
+    f = face[h:len(face) - h]
+    fwd = v[:, 0] * np.sin(f) + v[:, 1] * np.cos(f)
+    left = v[:, 0] * np.cos(f) - v[:, 1] * np.sin(f)
+    return fwd, left, np.degrees(turned) * FPS / (2 * h), h
+
+
+def steady_motion(seg, j, keys=("steady", "walk")):
+    """(forward, left, turning rate) over the frames a segment keeps its pace on, or if that is under a
+    gait cycle all those it steps on (None if that is too)."""
+    fwd, left, turn, h = gait_motion(j, seg.params["cadence"])
+    for key in keys:
+        a, b = max(0, seg.params[key][0] - h), min(len(fwd), seg.params[key][1] - h)
+        if b - a >= 2 * h:
+            return fwd[a:b], left[a:b], turn[a:b]
+    return None
+
+
+def path_promises(seg, j):
+    """(promise, kept) for what a path segment's caption says, measured on its frames j (through the
+    features). The bounds come from paths.py's parameters, with room for the body's sway."""
+    p, text, kind = seg.params, seg.caption, seg.params["kind"]
+    out = [(f"is a {kind} ({seg.family})", seg.family in PATH_FAMILIES[kind])]
+    m = motion_facts(j)
+    steady = steady_motion(seg, j) if "steady" in p else None
+    if kind in ("walk", "run"):
+        speed = float(np.median(np.hypot(steady[0], steady[1]))) if steady else None
+        if steady:
+            fwd, left = np.median(steady[0]), np.median(steady[1])
+            out.append(("moves the way it faces", fwd > 0.25 and abs(left) < 0.15 + 0.2 * fwd))
+            out.append((f"a {kind} at a {kind}'s speed", speed < 2.0 if kind == "walk" else speed > 1.5))
+            if "then" in text and "turns" not in text:  # "walks slowly, then quickly", "runs fast and then jogs"
+                v, third = np.hypot(steady[0], steady[1]), len(steady[0]) // 3
+                early, late = np.median(v[:third]), np.median(v[-third:])
+                paces = [w for w in re.findall(r"slowly|normal pace|quickly|jogs|runs fast|runs", text)]
+                order = ["slowly", "normal pace", "quickly", "jogs", "runs", "runs fast"]
+                faster = order.index(paces[-1]) > order.index(paces[0])
+                out.append(("speeds up" if faster else "slows down", (late - early) * (1 if faster else -1) > 0.1))
+            else:  # speed words are only used when the whole segment keeps to their band
+                for word, ok in (("slowly", speed < 1.15), ("quickly", speed > 1.3), ("jogs", speed < 3.0),
+                                 ("runs fast", speed > 3.0)):
+                    if word in text:
+                        out.append((f"{word}: {speed:.2f} m/s", ok))
+        sides = [{"counterclockwise": "left", "clockwise": "right"}.get(w, w)
+                 for w in re.findall(r"\b(left|right|counterclockwise|clockwise)\b", text)]
+        want = ["left" if t[0] > 0 else "right" for t in p["turns"]]
+        named = [want[0]] if len(want) == 2 and want[0] == want[1] else want  # "turns left twice"
+        out.append(("names its turns in order", sides == named))
+        h = np.degrees(_facing(j))
+        for deg, a, b in p["turns"]:  # each turn it names happens, that way, over its frames
+            turned = h[min(b, len(h)) - 1] - h[a]
+            out.append((f"turns {deg:+.0f} deg over frames {a}-{b}", np.sign(turned) == np.sign(deg)
+                        and abs(turned) > max(20.0, 0.6 * abs(deg))))
+        if "circle" in text:
+            out.append(("walks a circle: 280+ deg", max(abs(t[0]) for t in p["turns"]) >= 300 and abs(m["turn"]) > 280))
+        if not p["turns"]:
+            out.append(("keeps its heading within 45 deg", abs(m["turn"]) < 45))
+        if "straight" in text:
+            out.append(("keeps its heading within 25 deg", abs(m["turn"]) < 25))
+    if kind == "backpedal" and steady:
+        fwd, left = np.median(steady[0]), np.median(steady[1])
+        out.append(("moves backward", fwd < -0.15 and abs(left) < 0.1))
+        if "slowly" in text:
+            out.append((f"slowly: {-fwd:.2f} m/s", -fwd < 0.5))
+    said = re.search(r"\b(left|right)\b", text)
+    sign = {"left": 1, "right": -1}.get(said.group(1) if said else None, 0)
+    if kind == "diagonal" and (steady := steady_motion(seg, j, ("steady",))):  # not turning into it
+        angle = np.degrees(np.arctan2(np.median(steady[1]), np.median(steady[0])))
+        out.append((f"moves forward and to the {said.group(1)}: 25-55 deg off its facing", 25 < sign * angle < 55))
+    if kind == "sidestep":
+        out.append((f"moves to the {said.group(1)}", 0.15 * p["steps"] < sign * m["left"] < 0.6 * p["steps"]))
+        out.append(("sideways, not forward or back", abs(m["fwd"]) < 0.25))
+    if kind == "turn":
+        out.append((f"turns {said.group(1)} {p['angle']:.0f} deg (+-20)", abs(m["turn"] - sign * p["angle"]) < 20))
+        out.append(("on the spot: moves < 0.5 m", m["dist"] < 0.5))
+        for words, lo, hi in (("slightly|a little", 20, 70), ("turns around to|other way", 120, 240),
+                              ("full circle|all the way|spins", 280, 400)):
+            if re.search(words, text):
+                out.append((f"{words}: turns {lo}-{hi} deg", lo < abs(m["turn"]) < hi))
+    if kind == "stand":
+        out.append(("stands: moves < 5 cm, turns < 5 deg", m["dist"] < 0.05 and abs(m["turn"]) < 5))
+    if kind != "stand":
+        out.append(("names its side", _sided(seg.family, text)))
+    return out
+
+
+def test_path_sequences_tile_and_each_segment_does_what_its_caption_says(path_clips):
+    broken, kinds = [], set()
+    for i, (clip, j) in enumerate(path_clips):
+        segs, T = clip.segments, len(clip.joints)
+        assert 20 * FPS <= T <= 60 * FPS
+        assert segs[0].start == 0 and segs[-1].end == T and all(a.end == b.start for a, b in zip(segs, segs[1:]))
+        # every span loads as an item of its own: T2M's 40 <= feature frames < 200
+        assert all(S.MIN_SPAN <= s.end - s.start < 200 for s in segs)
+        assert all(s.family in FAMILIES for s in segs)
+        assert 1 <= len(clip.captions) <= 2
+        for s in segs:
+            assert s.caption.endswith(".") and captions.pos_tokens(s.caption)  # every word is in the lexicon
+            kinds.add(s.params["kind"])
+            broken += [f"path [41, {i}] frames [{s.start}, {s.end}) {s.caption!r}: not {what}"
+                       for what, ok in path_promises(s, j[s.start:s.end]) if not ok]
+    assert kinds == set(PT.KINDS)
+    assert not broken, "\n".join(broken)
+
+
+def test_path_sequences_feet_floor_and_smoothness(path_clips):
+    """The thresholds of the families' tests above (test_feet_do_not_slide, test_feet_on_the_floor...,
+    test_no_flips_and_smooth), held by each kind of segment."""
+    want = HUMANML3D.bone_lengths[BONES]
+    slides, planted, pelvis = [], {}, []
+    for clip, _ in path_clips:
+        j = clip.joints
+        assert np.abs(np.linalg.norm(j[:, BONES] - j[:, PARENTS[BONES]], axis=-1) - want).max() < 1e-5
+        assert j[..., 1].min() > -0.01
+        b = j[:, BONES] - j[:, PARENTS[BONES]]
+        b /= np.linalg.norm(b, axis=-1, keepdims=True)
+        ang = np.degrees(np.arccos(np.clip((b[1:] * b[:-1]).sum(-1), -1, 1)))
+        acc = np.linalg.norm(np.diff(j, 2, axis=0), axis=-1) * FPS * FPS
+        assert ang.max() < 60 and acc.max() < 200
+        for s in clip.segments:
+            kind, seg = s.params["kind"], j[s.start:s.end]
+            slide, toe = _slides(seg)
+            slides.append(slide)
+            planted.setdefault(kind, []).append(toe)
+            grounded = (seg[:, [10, 11], 1].min(axis=1) < 0.03) | (seg[:, [7, 8], 1].min(axis=1) < 0.075)
+            assert grounded.mean() > (0.5 if kind == "run" else 0.97), (kind, s.caption)
+            a = acc[max(0, s.start - 1):s.end - 2, 0]
+            assert a.max() < (100 if kind == "run" else 50), (kind, s.caption)
+            if kind != "run":
+                pelvis.append(a)
+    slide = np.concatenate(slides)
+    assert np.percentile(slide, 95) < 0.02 and slide.mean() < 0.005
+    assert np.percentile(np.concatenate(pelvis), 95) < 20
+    # Planted toes, per kind: the families' levels. Walks, diagonals, sidesteps and stands hold the clips'
+    # thresholds; turns on the spot and backward steps land their feet turning or still moving 1-5 cm in
+    # their last frame over the floor, as the families' turn_left and walk_backward do (2% and 1% of their
+    # frames); a run's toes leave and reach the floor at running speed (the run family: p99 5 cm, 5%).
+    for kinds, p99, over in ((("walk", "diagonal", "sidestep", "stand"), 0.01, 0.02),
+                             (("turn", "backpedal"), 0.05, 0.03), (("run",), 0.08, 0.08)):
+        toe = np.concatenate([t for k in kinds for t in planted.get(k, [])])
+        assert np.percentile(toe, 99) < p99 and (toe > 0.01).mean() < over, (kinds, np.percentile(toe, 99))
+
+
+def test_path_sequences_cover_speeds_and_turning_rates():
+    """What a controller asks for is there: walks from under 0.9 to over 1.6 m/s, runs to over 3.5, at
+    speeds that differ continuously (not three paces), and walks that turn faster than 60 deg/s."""
+    speeds, turning = {"walk": [], "run": []}, []
+    for i in range(16):
+        clip = PT.generate_path_sequence(np.random.default_rng([42, i]))
+        j = through_features(clip.joints)
+        for s in clip.segments:
+            if s.params["kind"] in speeds and (steady := steady_motion(s, j[s.start:s.end])):
+                speeds[s.params["kind"]].append(float(np.median(np.hypot(steady[0], steady[1]))))
+                if s.params["kind"] == "walk":
+                    turning.append(np.abs(steady[2]).max())
+    walk, run = np.array(speeds["walk"]), np.array(speeds["run"])
+    assert len(walk) >= 20 and len(run) >= 12
+    assert walk.min() < 0.9 and walk.max() > 1.6 and run.max() > 3.5 and run.min() < 2.4
+    assert np.median(run) > 1.5 * np.median(walk)
+    # a continuum, not three paces: every quarter m/s of the walks' range is walked, every 0.75 of the runs' run
+    assert (np.histogram(walk, np.arange(0.5, 1.8, 0.25))[0] > 0).all()
+    assert (np.histogram(run, np.arange(1.75, 4.1, 0.75))[0] > 0).all()
+    assert max(turning) > 60
+
+
+def test_path_sequences_are_timelines(built):
+    """timelines.py reads a path sequence as it reads a long one: whole, one segment per move."""
+    info = json.loads((built / "dataset.json").read_text())
+    lines = {t.clip_id: t for t in read_timelines(built, "train")}
+    for i in PATH:
+        segments = info["segments"][i]
+        assert [(s.first, s.stop) for s in lines[i].segments] == [(g["start"], min(g["end"], len(lines[i].features)))
+                                                                   for g in segments]
+        assert all(len(s.captions) == 1 for s in lines[i].segments)

@@ -99,8 +99,8 @@ def test_teacher_forced_agreement_counts_argmax_changes(tiny_bundle):
         def __getattr__(self, name):
             return getattr(fp32, name)
 
-        def step(self, emb, tokens, past):
-            logits, past = fp32.step(emb, tokens, past)
+        def step(self, emb, tokens, past, control=None):
+            logits, past = fp32.step(emb, tokens, past, control)
             logits = logits.copy()
             logits[..., 0, :] *= -1
             return logits, past
@@ -235,12 +235,16 @@ def test_streaming_windows_stay_inside_one_timed_segment():
     seq = np.arange(30)[:, None].repeat(L, axis=1)
     segments = [(0, 10, ["a"]), (10, 20, ["b"]), (20, 30, ["c"])]
     emb = {c: np.full(4, i, np.float32) for i, c in enumerate("abc")}
-    windows = train._window_examples([(seq, segments)], emb, np.random.default_rng(0), 400, cfg, streaming)
-    for text, tin, tgt in windows:
+    # the control of token t reads t in every field, so a window's controls say which tokens they belong to
+    controls = np.arange(31, dtype=np.float32)[:, None].repeat(cfg.control_dim, axis=1)
+    windows = train._window_examples([(seq, segments)], emb, np.random.default_rng(0), 400, cfg, streaming,
+                                     [controls])
+    for text, tin, tgt, control in windows:
         segment = int(text[0])
         assert (tin[0] == cfg.bos_id).all() and len(tin) == len(tgt) and 1 <= len(tgt) <= 8
         assert (tgt[:, 0] // 10 == segment).all()                          # the prompt's own segment only
         assert np.array_equal(tin[1:], tgt[:-1])                            # inputs are the targets shifted by one
-    assert {len(t) for _, _, t in windows} == set(range(1, 9))              # every context length is trained
-    first = [int(t[0, 0]) % 10 for _, _, t in windows]
+        assert np.array_equal(control[:, 0], tgt[:, 0])                     # each step reads its target's control
+    assert {len(t) for _, _, t, _ in windows} == set(range(1, 9))           # every context length is trained
+    first = [int(t[0, 0]) % 10 for _, _, t, _ in windows]
     assert first.count(0) > 20 and sum(f > 0 for f in first) > 200          # at segment starts and mid-action

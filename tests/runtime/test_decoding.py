@@ -21,7 +21,7 @@ class ToyBackend:
 
     def __init__(self, end_at=None, seed=0):
         rng = np.random.default_rng(seed)
-        self.dims = DIMS
+        self.dims, self.control = DIMS, None
         V = DIMS.codebook_size + 1
         self.w_text = rng.normal(size=(DIMS.text_dim, DIMS.num_levels * V))
         self.w_tok = rng.normal(size=(DIMS.codebook_size + 3, DIMS.num_levels * V))
@@ -32,7 +32,7 @@ class ToyBackend:
     def empty_past(self, rows):
         return np.zeros(rows, np.int64)
 
-    def step(self, text_emb, tokens, past):
+    def step(self, text_emb, tokens, past, control=None):
         self.rows_seen.append(text_emb.copy())
         R, S, L = tokens.shape
         V = DIMS.codebook_size + 1

@@ -52,8 +52,8 @@ class Recorded:
     def __getattr__(self, name):
         return getattr(self.backend, name)
 
-    def step(self, emb, tokens, past):
-        logits, present = self.backend.step(emb, tokens, past)
+    def step(self, emb, tokens, past, control=None):
+        logits, present = self.backend.step(emb, tokens, past, control)
         end = self.force_end.get(len(self.calls), self.force_end.get("all"))
         self.calls.append((tokens.copy(), past[0].shape[2]))
         if end is not None:

@@ -399,7 +399,7 @@ def test_a_prompt_line_that_is_not_utf8_ends_a_follow_stream(capsys, monkeypatch
     code = main(["stream", TEXT, "--bundle", str(toy_bundle), "--seconds", "4", "--follow"])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1, err
-    assert err.startswith("mogo: error: prompt 0 is not valid Unicode text: character 15"), err
+    assert err.startswith("mogo: error: stdin: prompt 0 is not valid Unicode text: character 15"), err
 
 
 def test_real_argv_bytes_that_are_not_utf8(tmp_path, toy_bundle):  # noqa: F811

@@ -7,7 +7,7 @@ import { featureLayout } from '../kinematics/features.js';
 import { SKELETONS, storedSkeleton } from '../kinematics/skeleton.js';
 import {
   Fields, GRAPHS, PER_ROW_INT8, cacheNames, kind, parseCache, parseFiles, parseGraph, parseModel,
-  parseNormalization, parseOrt, parsePortable, parseSampling, parseStreaming, parseTca, parseTextEncoder,
+  parseControl, parseNormalization, parseOrt, parsePortable, parseSampling, parseStreaming, parseTca, parseTextEncoder,
   parseVariants, sameJson,
 } from './sections.js';
 
@@ -55,8 +55,9 @@ export function parseManifest(data, where) {
     tca: f.optional('tca', (s) => parseTca(s, model)),
     ort: f.optional('ort', parseOrt),
     portable: f.optional('portable', (s) => parsePortable(s, model, streaming)),
+    control: f.optional('control', parseControl),
   };
-  for (const [io, more] of [['inputs', 2], ['outputs', 1]]) {   // before n_layers' cache names are built (2**31 of them?)
+  for (const [io, more] of [['inputs', m.control ? 3 : 2], ['outputs', 1]]) {   // before n_layers' cache names are built (2**31 of them?)
     const n = m.graphs.step[io].length, want = more + 2 * model.nLayers;
     if (n !== want) {
       f.fail(`graphs.step.${io}`, `${n} tensors; model.n_layers ${model.nLayers} makes ${want} (a key and value each)`);
@@ -123,8 +124,8 @@ function checkAgreement(m, f) {
     }
   }
   for (const [graph, [inputs, outputs]] of Object.entries(GRAPH_IO)) {
-    const step = graph === 'step';
-    for (const [io, want] of [['inputs', { ...inputs, ...each(step ? m.pastNames : [], 4) }],
+    const step = graph === 'step', control = step && m.control ? { control: 3 } : {};
+    for (const [io, want] of [['inputs', { ...inputs, ...control, ...each(step ? m.pastNames : [], 4) }],
       ['outputs', { ...outputs, ...each(step ? m.presentNames : [], 4) }]]) {
       const got = Object.fromEntries(m.graphs[graph][io].map((s) => [s.name, s.shape.length]));
       if (!sameJson(Object.keys(got), Object.keys(want)) || !sameJson(got, want)) {
@@ -132,6 +133,11 @@ function checkAgreement(m, f) {
           + `${step ? ' (n_layers and the cache templates)' : ''}`);
       }
     }
+  }
+  const control = m.graphs.step.inputs[2];
+  if (m.control && (control.dtype !== 'float32' || control.shape[2] !== m.control.dim)) {
+    f.fail('graphs.step.inputs[2]', `'control' is ${control.dtype} ${shown(control.shape)}, expected float32 [batch, steps, `
+      + `${m.control.dim}] (control.dim)`);
   }
   const logits = m.graphs.step.outputs[0].shape, { numLevels: L, codebookSize: K } = m.model;
   if (logits.length !== 4 || logits[2] !== L || logits[3] !== K + 1) {
@@ -160,7 +166,8 @@ function checkFixedCache(m, f) {
   const { numLevels: L, nHeads, headDim, textDim, codebookSize: K } = m.model;
   const cache = ['float32', [L * nHeads, m.portable.capacity, headDim]];
   const want = {
-    inputs: { text_embedding: ['float32', [textDim]], tokens: ['int64', [1, L]], position: ['int64', []], ...each(m.pastNames, cache) },
+    inputs: { text_embedding: ['float32', [textDim]], tokens: ['int64', [1, L]],
+      ...(m.control ? { control: ['float32', [1, m.control.dim]] } : {}), position: ['int64', []], ...each(m.pastNames, cache) },
     outputs: { logits: ['float32', [1, L, K + 1]], ...each(m.presentNames, cache) },
   };
   for (const [io, expected] of Object.entries(want)) {

@@ -178,6 +178,19 @@ export function parseStreaming(f, model) {
 }
 
 /**
+ * The `control` section: the step graph's control input, where the character should go (bundle/sections.py
+ * ControlSpec; runtime/mogo_runtime/control/vector.py): the wanted root of the next `horizon` tokens.
+ */
+export function parseControl(f) {
+  const spec = { horizon: f.int('horizon', 1, 64), dim: f.int('dim', 1, 1 + 4 * 64) };
+  if (spec.dim !== 1 + 4 * spec.horizon) {
+    f.fail('dim', `is ${spec.dim}; a horizon of ${spec.horizon} tokens makes ${1 + 4 * spec.horizon} (present, then x, z, `
+      + 'sin, cos per token)');
+  }
+  return spec;
+}
+
+/**
  * Cache slots the loop can fill: a clip's BOS and max_tokens (one spare: a consumer may feed its last pick too),
  * an endless stream's BOS and window + refresh.
  */

@@ -1,11 +1,12 @@
 """Writing the procedural dataset in the HumanML3D folder layout: the clip files (short clips, then long
-sequences), the train/val/test split, the Mean/Std feature statistics, dataset.json, and the command line
-(`python -m mogo_export.data.procedural`).
+sequences, then path sequences), the train/val/test split, the Mean/Std feature statistics, dataset.json,
+and the command line (`python -m mogo_export.data.procedural`).
 
 The whole dataset is the unit of atomicity: it is written into a hidden temporary sibling folder and
 renamed into place at the end (removed on any failure), so its single files need no atomic writes of their
-own. Everything is a function of (num_clips, long_sequences, seed), whatever the number of worker processes;
-a short clip does not depend on long_sequences, nor a long sequence on num_clips (only its id does).
+own. Everything is a function of (num_clips, long_sequences, path_sequences, seed), whatever the number of
+worker processes; a short clip does not depend on the other two counts, nor a long or path sequence on the
+counts before it (only its id does).
 """
 from __future__ import annotations
 
@@ -29,15 +30,18 @@ from .captions import caption_line
 from .clips import Clip, family_plan, generate_clip, label_for
 from .families import FAMILIES
 from .pose import FPS
+from .paths import generate_path_sequence
 from .sequences import generate_long
 
 # 2: jumps land where they are meant to (in place, or their distance ahead); long sequences
-GENERATOR_VERSION = 2
+# 3: path sequences (short clips and long sequences unchanged)
+GENERATOR_VERSION = 3
 SPLITS = (("train", 0.80), ("val", 0.15), ("test", 0.05))
 LONG_EVERY = 10  # by default one long sequence per 10 short clips
+PATH_EVERY = 10  # and one path sequence
 # generator streams, np.random.default_rng([seed, ..., stream]): a new kind of draw gets a new stream, so
 # adding it changes nothing drawn before (short clips are [seed, index]; family_plan uses 1 and 2)
-SPLIT_STREAM, LONG_STREAM, LONG_SPLIT_STREAM = 3, 4, 5
+SPLIT_STREAM, LONG_STREAM, LONG_SPLIT_STREAM, PATH_STREAM, PATH_SPLIT_STREAM = 3, 4, 5, 6, 7
 
 
 def mean_std(features, num_joints: int) -> tuple[np.ndarray, np.ndarray]:
@@ -64,17 +68,21 @@ def mean_std(features, num_joints: int) -> tuple[np.ndarray, np.ndarray]:
     return mean.astype(np.float32), std.astype(np.float32)
 
 
-def _generate(index: int, plan: list[tuple[str, ...]], seed: int) -> tuple[Clip, bool]:
-    """Clip `index`: the short clips of `plan` first, then the long sequences; -> (clip, is it long)."""
+def _generate(index: int, plan: list[tuple[str, ...]], num_long: int, seed: int) -> tuple[Clip, bool]:
+    """Clip `index`: the short clips of `plan` first, then `num_long` long sequences, then the path
+    sequences; -> (clip, is it timed: a long or path sequence)."""
     if index < len(plan):
         return generate_clip(plan[index], np.random.default_rng([seed, index])), False
-    return generate_long(np.random.default_rng([seed, index - len(plan), LONG_STREAM])), True
+    if index < len(plan) + num_long:
+        return generate_long(np.random.default_rng([seed, index - len(plan), LONG_STREAM])), True
+    return generate_path_sequence(np.random.default_rng([seed, index - len(plan) - num_long, PATH_STREAM])), True
 
 
-def _write_clip(index: int, plan: list[tuple[str, ...]], seed: int, root: Path) -> tuple[str, str, int, list | None]:
-    """Write clip `index`'s files; -> (id, label, frames, its segments if it is a long sequence)."""
+def _write_clip(index: int, plan: list[tuple[str, ...]], num_long: int, seed: int,
+                root: Path) -> tuple[str, str, int, list | None]:
+    """Write clip `index`'s files; -> (id, label, frames, its segments if it is a long or path sequence)."""
     clip_id = f"{index:06d}"
-    (joints, captions, segments), long = _generate(index, plan, seed)
+    (joints, captions, segments), long = _generate(index, plan, num_long, seed)
     features = extract_features(joints, HUMANML3D)
     np.save(root / "new_joint_vecs" / f"{clip_id}.npy", features)
     np.save(root / "new_joints" / f"{clip_id}.npy", canonicalize(joints, HUMANML3D).astype(np.float32))
@@ -107,11 +115,12 @@ def _frame_stats(frames: list[int]) -> dict:
     return {"min": int(min(frames)), "max": int(max(frames)), "mean": round(float(np.mean(frames)), 2)}
 
 
-def _build_into(tmp: Path, num_clips: int, num_long: int, seed: int, progress: bool, workers: int) -> None:
+def _build_into(tmp: Path, num_clips: int, num_long: int, num_path: int, seed: int, progress: bool,
+                workers: int) -> None:
     """Write every file of the dataset into `tmp` (see build_dataset)."""
     plan = family_plan(num_clips, seed)
-    job = partial(_write_clip, plan=plan, seed=seed, root=tmp)
-    total = num_clips + num_long
+    job = partial(_write_clip, plan=plan, num_long=num_long, seed=seed, root=tmp)
+    total = num_clips + num_long + num_path
     bar = tqdm(total=total, desc="procedural clips", unit="clip", disable=not progress)
     results = []
     if workers > 1 and total > 1:
@@ -125,13 +134,15 @@ def _build_into(tmp: Path, num_clips: int, num_long: int, seed: int, progress: b
             bar.update()
     bar.close()
 
-    short, long = results[:num_clips], results[num_clips:]
+    short, long, path = results[:num_clips], results[num_clips:num_clips + num_long], results[num_clips + num_long:]
     ids = [r[0] for r in short]
     splits = split_ids(ids, seed)
-    # long sequences are split on their own, so adding them leaves the short clips' split as it was
+    # long and path sequences are split on their own, so adding them leaves the short clips' split as it was
     long_splits = split_ids([r[0] for r in long], seed, LONG_SPLIT_STREAM)
+    path_splits = split_ids([r[0] for r in path], seed, PATH_SPLIT_STREAM)
     for name, members in splits.items():
-        (tmp / f"{name}.txt").write_text("".join(m + "\n" for m in members + long_splits[name]), encoding="utf-8")
+        (tmp / f"{name}.txt").write_text("".join(m + "\n" for m in members + long_splits[name] + path_splits[name]),
+                                         encoding="utf-8")
     # Statistics over the short clips only: long sequences are the same actions, with standing cross-fades
     # between them; with them Mean/Std would move with how many are built (200 hold a third of the frames).
     train = [tmp / "new_joint_vecs" / f"{m}.npy" for m in splits["train"] or ids]
@@ -140,14 +151,15 @@ def _build_into(tmp: Path, num_clips: int, num_long: int, seed: int, progress: b
     np.save(tmp / "Std.npy", std)
 
     labels = [r[1] for r in short]
-    segments = {r[0]: r[3] for r in long}
-    family_spans = [s["family"] for spans in segments.values() for s in spans]
+    segments = {r[0]: r[3] for r in long + path}
+    family_spans = [s["family"] for r in long for s in r[3]]
+    path_spans = [s["family"] for r in path for s in r[3]]
     info = {
         "generator": "mogo_export.data.procedural",
         "generator_version": GENERATOR_VERSION,
         "seed": seed,
         "num_clips": num_clips,
-        "splits": {k: len(v) + len(long_splits[k]) for k, v in splits.items()},
+        "splits": {k: len(v) + len(long_splits[k]) + len(path_splits[k]) for k, v in splits.items()},
         "families": list(FAMILIES),
         "label_counts": {k: labels.count(k) for k in sorted(set(labels))},
         "label_format": "family name, or 'seq:<first>+<second>' for a two-action sequence (in order); a long "
@@ -158,6 +170,13 @@ def _build_into(tmp: Path, num_clips: int, num_long: int, seed: int, progress: b
         "num_long_sequences": num_long,
         "long_frames": _frame_stats([r[2] for r in long]),
         "long_family_counts": {k: family_spans.count(k) for k in sorted(set(family_spans))},
+        "num_path_sequences": num_path,
+        "path_frames": _frame_stats([r[2] for r in path]),
+        "path_family_counts": {k: path_spans.count(k) for k in sorted(set(path_spans))},
+        "path_format": "path sequences (ids after the long sequences; paths.py: 20-60 s of walking, running, "
+                       "turning, standing, backward, sideways and diagonal steps along a random path) are "
+                       "labelled, captioned and segmented as long sequences are: 'seq:' and their segments' "
+                       "families, a timed caption per segment, and their segments in \"segments\"",
         "segments": segments,
         "segment_format": "long sequence id -> its actions in order, each shown on frames [start, end) of "
                           "new_joints/<id>.npy (the features have one frame fewer); consecutive segments meet "
@@ -172,24 +191,28 @@ def _build_into(tmp: Path, num_clips: int, num_long: int, seed: int, progress: b
 
 
 def build_dataset(out_dir, num_clips: int = 2000, seed: int = 0, progress: bool = True, workers: int = 2,
-                  overwrite: bool = False, long_sequences: int | None = None) -> Path:
+                  overwrite: bool = False, long_sequences: int | None = None,
+                  path_sequences: int | None = None) -> Path:
     """Write a procedural dataset in the HumanML3D folder layout and return its path.
 
     `num_clips` short clips (ids 0 .. num_clips-1: single actions, every 5th a two-action sequence, 2-10 s)
-    and then `long_sequences` long ones (default num_clips // 10; 20-60 s, 3-8 actions, sequences.py):
+    and then `long_sequences` long ones (default num_clips // 10; 20-60 s, 3-8 actions, sequences.py), and
+    then `path_sequences` path sequences (default num_clips // 10; 20-60 s of locomotion along a random path,
+    a segment per move, paths.py; written as long sequences are):
       new_joint_vecs/NNNNNN.npy  (T-1, 263) float32 features (mogo_export.data.humanml3d.extract_features)
       new_joints/NNNNNN.npy      (T, 22, 3) float32 joints, canonicalised as HumanML3D's are (floor y=0,
                                  frame 0 root at x=z=0 facing +z); the features have one frame fewer
       texts/NNNNNN.txt           lines `caption#word/POS ...#start#end`: 3-4 of the whole clip (0.0#0.0);
-                                 a long sequence has 1-2 of the whole and one per action, timed in seconds
+                                 a long (or path) sequence has 1-2 of the whole and one per action (or
+                                 move), timed in seconds
       labels/NNNNNN.txt          the family (`squat`) or, for a sequence, `seq:first+second+...`
-      train.txt val.txt test.txt clip ids, an 80/15/5 split (of the short clips, and of the long ones)
+      train.txt val.txt test.txt clip ids, an 80/15/5 split (of the short clips, the long ones, the path ones)
       Mean.npy Std.npy           feature statistics over the short clips' train split (see `mean_std`)
       dataset.json               generator version, seed, counts, families, fps, skeleton, and each long
-                                 sequence's segments (family, start and end frame)
-    Everything is a function of (num_clips, long_sequences, seed): the same call writes byte-identical
-    files, whatever `workers` is. The dataset is built in a temporary sibling folder and renamed into
-    place at the end.
+                                 or path sequence's segments (family, start and end frame)
+    Everything is a function of (num_clips, long_sequences, path_sequences, seed): the same call writes
+    byte-identical files, whatever `workers` is. The dataset is built in a temporary sibling folder and
+    renamed into place at the end.
     """
     out = Path(out_dir)
     if num_clips < 1:
@@ -197,6 +220,9 @@ def build_dataset(out_dir, num_clips: int = 2000, seed: int = 0, progress: bool 
     num_long = num_clips // LONG_EVERY if long_sequences is None else int(long_sequences)
     if num_long < 0:
         raise ValueError(f"long_sequences must be >= 0, got {long_sequences}")
+    num_path = num_clips // PATH_EVERY if path_sequences is None else int(path_sequences)
+    if num_path < 0:
+        raise ValueError(f"path_sequences must be >= 0, got {path_sequences}")
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} already exists; pass overwrite=True (--overwrite) to replace it")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -206,7 +232,7 @@ def build_dataset(out_dir, num_clips: int = 2000, seed: int = 0, progress: bool 
         (tmp / sub).mkdir(parents=True)
 
     try:
-        _build_into(tmp, num_clips, num_long, seed, progress, workers)
+        _build_into(tmp, num_clips, num_long, num_path, seed, progress, workers)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)  # never leave a half dataset behind, even a hidden one
         raise
@@ -227,6 +253,8 @@ def main(argv=None) -> None:
     ap.add_argument("out_dir", type=Path)
     ap.add_argument("--clips", type=int, default=2000)
     ap.add_argument("--long", type=int, default=None, help="long sequences (default: clips // 10)")
+    ap.add_argument("--path-sequences", type=int, default=None,
+                    help="path sequences: locomotion along random paths (default: clips // 10)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--overwrite", action="store_true", help="replace OUT_DIR if it exists")
@@ -234,6 +262,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     out = build_dataset(args.out_dir, args.clips, args.seed, progress=not args.quiet, workers=args.workers,
-                        overwrite=args.overwrite, long_sequences=args.long)
-    num_long = json.loads((out / "dataset.json").read_text(encoding="utf-8"))["num_long_sequences"]
-    print(f"wrote {args.clips} clips and {num_long} long sequences to {out} in {time.perf_counter() - t0:.1f} s")
+                        overwrite=args.overwrite, long_sequences=args.long, path_sequences=args.path_sequences)
+    info = json.loads((out / "dataset.json").read_text(encoding="utf-8"))
+    print(f"wrote {args.clips} clips, {info['num_long_sequences']} long sequences and "
+          f"{info['num_path_sequences']} path sequences to {out} in {time.perf_counter() - t0:.1f} s")

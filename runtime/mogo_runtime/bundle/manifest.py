@@ -14,9 +14,9 @@ from ..checks import Fields, kind, shown
 from ..kinematics.features import FeatureLayout
 from ..kinematics.skeleton import SKELETONS, Skeleton
 from .sampling import SamplingConfig
-from .sections import (GRAPHS, NORMALIZATION, PER_ROW_INT8, BundleError, CacheNames, GraphFile, GraphSpec,
-                       ModelDims, Normalization, OrtFormat, PortableSpec, StreamingSpec, TcaSpec, TextEncoderSpec,
-                       parse_files, parse_sampling, parse_variants)
+from .sections import (GRAPHS, NORMALIZATION, PER_ROW_INT8, BundleError, CacheNames, ControlSpec, GraphFile,
+                       GraphSpec, ModelDims, Normalization, OrtFormat, PortableSpec, StreamingSpec, TcaSpec,
+                       TextEncoderSpec, parse_files, parse_sampling, parse_variants)
 
 SCHEMA = "mogo-bundle"
 # 2: cache-name templates; `normalization` always an object; text_encoder numbers stored as numbers.
@@ -52,6 +52,7 @@ class Manifest:
     streaming: StreamingSpec | None = None      # None: not trained for endless streams
     portable: PortableSpec | None = None        # the portable variant's step graph; None: no such variant
     ort: OrtFormat | None = None                # ORT-format variants; None: none
+    control: ControlSpec | None = None          # the step graph's `control` input; None: the model has none
 
     @property
     def layout(self) -> FeatureLayout:
@@ -96,6 +97,7 @@ class Manifest:
             "text_encoder": asdict(self.text_encoder), "sampling_defaults": self.sampling_defaults.to_dict(),
             "cache": asdict(self.cache), **({"tca": asdict(self.tca)} if self.tca else {}),
             **({"streaming": asdict(self.streaming)} if self.streaming else {}),
+            **({"control": asdict(self.control)} if self.control else {}),
             "graphs": {g: asdict(s) for g, s in self.graphs.items()},          # tuples are written as lists
             **({"portable": asdict(self.portable)} if self.portable else {}),
             **({"ort": asdict(self.ort)} if self.ort else {}),
@@ -117,7 +119,7 @@ class Manifest:
             f.fail("producer", f"expected an object, got {kind(producer)}")
         model = ModelDims.parse(f.sub("model"))
         streaming = None if f.get("streaming", None) is None else StreamingSpec.parse(f.sub("streaming"), model)
-        optional = {"tca": lambda s: TcaSpec.parse(s, model), "ort": OrtFormat.parse,
+        optional = {"tca": lambda s: TcaSpec.parse(s, model), "ort": OrtFormat.parse, "control": ControlSpec.parse,
                     "portable": lambda s: PortableSpec.parse(s, model, streaming)}
         return cls(model=model, skeleton=_parse_skeleton(f.sub("skeleton"), f.sub("features"), model),
                    normalization=Normalization.parse(f.sub("normalization"), model),
@@ -142,7 +144,8 @@ class Manifest:
         step, m = self.graphs["step"], self.model
         for graph, (inputs, outputs) in GRAPH_IO.items():
             cache = graph == "step"
-            for kind_, specs, want in (("inputs", self.graphs[graph].inputs, {**inputs, **dict.fromkeys(
+            control = {"control": 3} if cache and self.control else {}
+            for kind_, specs, want in (("inputs", self.graphs[graph].inputs, {**inputs, **control, **dict.fromkeys(
                     self.past_names if cache else (), 4)}), ("outputs", self.graphs[graph].outputs, {
                     **outputs, **dict.fromkeys(self.present_names if cache else (), 4)})):
                 got = {s.name: len(s.shape) for s in specs}
@@ -150,6 +153,10 @@ class Manifest:
                     raise BundleError(f"{where}: field graphs.{graph}.{kind_}: names and ranks are {shown(got, 300)}, "
                                       f"expected {shown(want, 300)}" + (" (n_layers and the cache templates)"
                                                                          if cache else ""))
+        if self.control and (step.inputs[2].dtype, step.inputs[2].shape[2]) != ("float32", self.control.dim):
+            raise BundleError(f"{where}: field graphs.step.inputs[2]: 'control' is {step.inputs[2].dtype} "
+                              f"{list(step.inputs[2].shape)}, expected float32 [batch, steps, {self.control.dim}] "
+                              f"(control.dim)")
         logits = step.outputs[0].shape
         if len(logits) != 4 or logits[2:] != (m.num_levels, m.codebook_size + 1):
             raise BundleError(f"{where}: field graphs.step.outputs[0].shape: {list(logits)} should end in "
@@ -180,8 +187,9 @@ class Manifest:
                               f"{step.quantization.to_dict() if step.quantization else None!r}")
         m, spec, cap = self.model, self.portable.step, self.portable.capacity
         cache = [m.num_levels * m.n_heads, cap, m.head_dim]
+        control = {"control": ("float32", [1, self.control.dim])} if self.control else {}
         want = {"inputs": {"text_embedding": ("float32", [m.text_dim]), "tokens": ("int64", [1, m.num_levels]),
-                           "position": ("int64", []), **dict.fromkeys(self.past_names, ("float32", cache))},
+                           **control, "position": ("int64", []), **dict.fromkeys(self.past_names, ("float32", cache))},
                 "outputs": {"logits": ("float32", [1, m.num_levels, m.codebook_size + 1]),
                             **dict.fromkeys(self.present_names, ("float32", cache))}}
         for kind_, expected in want.items():

@@ -230,6 +230,23 @@ class StreamingSpec:
         return spec
 
 
+@dataclass(frozen=True)
+class ControlSpec:
+    """Where the character should go, as the step graph's `control` input reads it (docs/bundle.md, "Control";
+    mogo_runtime/control/vector.py): the wanted root poses of the next `horizon` tokens, in the root's frame."""
+
+    horizon: int             # tokens of wanted trajectory per step
+    dim: int                 # the control input's width: 1 + 4 * horizon
+
+    @classmethod
+    def parse(cls, f: Fields) -> "ControlSpec":
+        spec = cls(horizon=f.int("horizon", 1, 64), dim=f.int("dim", 1, 1 + 4 * 64))
+        if spec.dim != 1 + 4 * spec.horizon:
+            f.fail("dim", f"is {spec.dim}; a horizon of {spec.horizon} tokens makes {1 + 4 * spec.horizon} "
+                          f"(present, then x, z, sin, cos per token)")
+        return spec
+
+
 def required_capacity(model: ModelDims, streaming: StreamingSpec | None) -> int:
     """Cache slots the generation loop can fill: a clip is BOS plus at most max_tokens - 1 fed tokens (the +1
     spares a consumer that also feeds the token picked at the last step), an endless stream's context is BOS
@@ -244,8 +261,8 @@ class PortableSpec:
 
     capacity: int                    # cache slots; at least required_capacity(model, streaming)
     opset: int                       # ai.onnx opset of the variant's graphs (at most PORTABLE_OPSET)
-    step: GraphSpec                  # inputs text_embedding, tokens, position, the past names; outputs logits,
-                                     # the present names (shapes in docs/bundle.md)
+    step: GraphSpec                  # inputs text_embedding, tokens, [control], position, the past names;
+                                     # outputs logits, the present names (shapes in docs/bundle.md)
 
     @classmethod
     def parse(cls, f: Fields, model: ModelDims, streaming: StreamingSpec | None) -> "PortableSpec":

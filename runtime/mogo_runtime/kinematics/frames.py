@@ -51,6 +51,15 @@ class RootIntegrator:
             self.previous = frame[:3].copy()
         return joints.astype(out_dtype)
 
+    def next_pose(self) -> np.ndarray:
+        """The root pose (x, z, yaw) of the next frame, which the frames so far fix (yaw as control/vector.py has
+        it: the root faces (sin yaw, cos yaw))."""
+        rot_vel, vx, vz = self.previous
+        angle = self.angle + rot_vel
+        cos2, sin2 = np.cos(2 * angle), np.sin(2 * angle)
+        x, z = self.position + (cos2 * vx - sin2 * vz, sin2 * vx + cos2 * vz)
+        return np.array([x, z, -2.0 * angle])
+
 
 class FootLock:
     """Keeps a planted toe planted by moving the whole body (x, z) by what the toe slides.
@@ -111,3 +120,9 @@ class FrameJoints:
     def push(self, features: np.ndarray) -> np.ndarray:
         """features (n, D) of the next n frames -> joints (n, J, 3) float32."""
         return self.lock.push(self.root.push(features), features)
+
+    def next_pose(self) -> np.ndarray:
+        """The root pose (x, z, yaw) of the next frame, where the frames so far put it (the lock's offset too)."""
+        pose = self.root.next_pose()
+        pose[:2] += self.lock.offset
+        return pose

@@ -1,0 +1,474 @@
+"""Path sequences: 20-60 s of locomotion along a random path, one timed caption per segment
+(`generate_path_sequence`), written after the long sequences.
+
+They hold what a game's locomotion controller asks a motion model for: walks at any speed from 0.6 to
+1.8 m/s and runs from 1.8 to 4 m/s (also speeding up or slowing down), paths of every curvature and sharp
+corners, turns on the spot by any angle, starts, stops and standing still, and moving while facing elsewhere
+(backward, sideways, diagonally). The families' clips step at three paces, turn 0 or 360 degrees on the move
+and 90, 180 or 360 on the spot: a model conditioned on a future root trajectory cannot learn to follow a
+path from them.
+
+The body is steered only through the heading track, the cadence and the stride: the feet are planted and
+the root follows from them (grounding.solve_ground), so a speed is asked for by choosing a cadence and the
+stride whose step length (measured, `Pace.steps`) gives it. Every segment starts and ends standing, so
+segments join with cross-fades between two stances, and each spans what sequences.py's do.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from .action import Action, TimeBudget
+from .captions import sequence_captions, single_caption
+from .clips import Clip, Segment, blend
+from .curves import Keys, ease
+from .gaits import MARCH, RUN, WALK, GaitStyle, gait, lock_foot_yaw
+from .grounding import pose_to_joints
+from .in_place import stand_idle
+from .locomotion import _sidestep, _take_steps
+from .pose import FPS, SIDES, Pose, seconds_to_frames
+from .sequences import MIN_SPAN, _still, hold
+
+PATH_SECONDS = (20.0, 60.0)
+MAX_SPAN = 199          # frames: T2M keeps items shorter than 200, so every segment still loads as one
+SEGMENT_SECONDS = 8.6   # a segment's own frames; with holds and half fades its span stays under MAX_SPAN
+# segment kinds and how often each is drawn (walks and runs also last longest: ~55% of the frames)
+KINDS = {"walk": 0.30, "run": 0.17, "backpedal": 0.09, "sidestep": 0.09, "diagonal": 0.08, "turn": 0.14,
+         "stand": 0.13}
+TURN_EVENT = 30.0       # degrees: a stretch that turns less is captioned as straight ahead
+FADE_FRAMES = (6, 16)   # 0.3-0.8 s: every segment starts and ends standing, so a fade joins two stances
+
+
+class Pace(NamedTuple):
+    """How a person reaches a speed with one gait: a cadence that rises with speed (steps/s = a + b * v,
+    times a per-segment factor), and the stride amplitude whose step length makes up the rest."""
+    style: GaitStyle
+    speeds: tuple[float, float]     # m/s, drawn uniformly
+    cadence: tuple[float, float]    # (a, b)
+    cadence_range: tuple[float, float]
+    amps: tuple[float, ...]         # stride amplitudes (gait's amp) ...
+    steps: tuple[float, ...]        # ... and the step length (m) each gave, measured on straight walks
+    max_turn: float                 # deg/s of the tightest curve
+    accel: float                    # m/s^2 at most, speeding up from standing and slowing to a stop
+    swing_scale: float = 1.0
+    direction: float = 1.0
+    lift: float = 1.0               # scales the knees' and feet's cycles
+
+
+# Step lengths measured with locomotion._take_steps at full stride (they do not depend on cadence). The
+# bounds are where the grounding stays smooth: a walk's first step shorter than amp 0.8 lands before its
+# heel reaches the floor and the root jerks (pelvis 100+ m/s^2, also in _take_steps); walks past 1.65
+# and runs past cadence 3.1 shake the pelvis past 50 and 100 m/s^2.
+WALK_PACE = Pace(WALK, (0.6, 1.8), (1.1, 0.75), (1.2, 2.45), (0.8, 1.0, 1.2, 1.4, 1.6, 1.65),
+                 (0.455, 0.542, 0.621, 0.685, 0.739, 0.752), 120.0, 1.5)
+RUN_PACE = Pace(RUN, (1.8, 4.0), (2.3, 0.2), (2.4, 3.1), (0.7, 0.8, 1.0, 1.2, 1.4, 1.6),
+                (0.59, 0.681, 0.857, 1.028, 1.188, 1.347), 65.0, 3.0)
+# Walking backward is the walk played in reverse, but with the knee bent early in the backward swing
+# (late in the forward one): the walk's knee lifts the foot only as it reaches back, so it dragged below
+# the pinning height, its pins held it 20-40 cm from where the legs put it, and it stood 5 cm off at the
+# end (the next segment's first step then flipped the knee). Its toe lands at phase 0.70 (the stance
+# mask's end), and the steps are shorter (0.25-0.33 m).
+BACKPEDAL = replace(WALK, stance=0.70, knee=[(0.0, 3), (0.13, 15), (0.38, 4), (0.55, 12), (0.65, 30), (0.75, 50),
+                                             (0.85, 55), (0.93, 25)])
+BACK_LIFT = 0.2  # the phase (forward) under which a foot stepping back is lifting, no longer carrying weight
+BACK_PACE = Pace(BACKPEDAL, (0.3, 0.6), (0.9, 1.0), (1.0, 2.0), (0.4, 0.6, 0.8, 1.0), (0.247, 0.281, 0.303, 0.312),
+                 0.0, 1.0, swing_scale=0.6, direction=-1.0)
+# a planted foot keeps its yaw, so the pelvis twists against it by what the body turns in half a stance
+# (the other half before mid-stance, see _plant_ahead): turning rates are capped per step to keep that
+# twist under ~40 degrees
+MAX_DEG_PER_STEP = 55.0
+CORNER_ACCEL = 4.5      # m/s^2 sideways, at most, round a corner
+
+
+def _speed_profile(rng, pace: Pace, change: bool) -> tuple[Callable, float, float]:
+    """Speed (m/s) as a function of the walking time's fraction u: steady, or easing from one speed to
+    another over part of it (speeding up or slowing down)."""
+    lo, hi = pace.speeds
+    v0 = rng.uniform(lo, hi)
+    if not change:
+        wobble = rng.uniform(-0.04, 0.04)  # a person's steady pace still drifts a little
+        return (lambda u: v0 * (1 + wobble * np.sin(np.pi * u))), v0, v0
+    v1 = rng.uniform(lo, hi)
+    while abs(v1 - v0) < 0.25 * (hi - lo):
+        v1 = rng.uniform(lo, hi)
+    u0 = rng.uniform(0.1, 0.45)
+    u1 = rng.uniform(u0 + 0.25, 0.9)
+    return (lambda u: v0 + (v1 - v0) * ease((u - u0) / (u1 - u0))), v0, v1
+
+
+def _pieces(rng, pace: Pace, seconds: float) -> list[tuple[str, float, float]]:
+    """The stretches a walking path is made of, each at least 1.5 s: (kind, seconds, turn rate deg/s, or
+    the angle of a corner)."""
+    n = int(rng.integers(1, min(3, max(1, int(seconds // 1.5))) + 1))
+    lengths = 1.5 + (seconds - 1.5 * n) * rng.dirichlet(np.ones(n))
+    out = []
+    is_run = pace is RUN_PACE
+    for length in lengths:
+        kind = str(rng.choice(["straight", "gentle", "tight", "corner"], p=[0.32, 0.3, 0.23, 0.15]))
+        side = float(rng.choice([-1.0, 1.0]))
+        if kind == "straight":  # a person's straight line still wanders a little
+            rate = rng.uniform(-2.0, 2.0)
+        elif kind == "gentle":  # at least TURN_EVENT over the stretch, so it is not captioned straight
+            rate = side * max(rng.uniform(10.0, 35.0 if is_run else 45.0), 1.3 * TURN_EVENT / length)
+        elif kind == "tight":
+            rate = side * rng.uniform(35.0 if is_run else 45.0, pace.max_turn)
+        else:
+            rate = side * rng.uniform(45.0, 100.0 if is_run else 135.0)
+        out.append((kind, float(length), float(rate)))
+    return out
+
+
+def _heading(rng, t, start, pieces, cadence, speed, steer) -> np.ndarray:
+    """Heading (deg) along the walk: a smooth curvature profile through the pieces' turn rates, and
+    corners (a quick change of 45-135 degrees over 0.5-1 s, longer where the speed asks for it) in corner
+    pieces. Turning is scaled by `steer` and corners kept where it is 1."""
+    k = Keys(w=0.0)
+    corners = []
+    full = t[steer > 0.999]
+    a = start
+    for kind, length, rate in pieces:
+        b = a + length
+        edge = min(0.4, 0.25 * length)
+        # a corner's sideways acceleration (peaking at 1.5 v * angle / dur) stays under CORNER_ACCEL:
+        # taken faster, the pelvis jerked past 50 m/s^2 at 1.8 m/s
+        v = float(np.interp(a + 0.5 * length, t, speed))
+        dur = float(np.clip(max(rng.uniform(0.5, 1.0), abs(rate) / 150.0,
+                                1.5 * v * np.radians(abs(rate)) / CORNER_ACCEL), 0.5, 1.5))
+        lo, hi = max(a, full[0]), min(b, full[-1]) - dur
+        if kind == "corner" and hi < lo:  # no room in a short walk: a tight curve instead
+            kind, rate = "tight", rate / length
+        w = 0.0 if kind == "corner" else rate
+        k.add(a + edge, w=w).add(b - edge, w=w)
+        if kind == "corner":
+            corners.append((0.5 * (lo + hi), dur, rate))
+        a = b
+    w = k("w", t) * steer
+    cap = MAX_DEG_PER_STEP * cadence
+    w = np.clip(w, -cap, cap)
+    heading = np.cumsum(w) / FPS
+    for tc, dur, angle in corners:
+        heading = heading + angle * ease((t - tc) / dur)
+    return heading
+
+
+def _plant_ahead(pose: Pose, heading: np.ndarray, stance: dict, rate: np.ndarray, style: GaitStyle) -> None:
+    """Set each foot down already turned by what the body turns in its first half-stance: gait() plants it
+    along the heading at touch-down, so on a curve the pelvis twisted against the planted foot by the
+    whole stance's turn (70+ degrees at 120 deg/s); now it is half of that either side of mid-stance.
+    The foot still keeps its yaw while planted."""
+    half = np.clip(0.5 * style.stance / np.maximum(rate, 1e-3), 0.0, 0.5)  # s: half a stance
+    ahead = np.interp(pose.t + half, pose.t, heading)
+    for side in ("left", "right"):
+        hip = SIDES[side]["hip"]
+        pose.angles[:, hip, 1] += lock_foot_yaw(ahead, stance[side]) - lock_foot_yaw(heading, stance[side])
+
+
+def _locomote(rng, pace: Pace, seconds: float, speed: Callable, pieces=None, hips: float = 0.0,
+              feet: float = 0.0, settle: float = 0.35) -> tuple[Pose, dict, dict]:
+    """Stand, step along a path for `seconds` at speed(u) m/s, stand (as locomotion._take_steps, with the
+    cadence, stride and heading varying along the way). Without `pieces` the heading stays, but `hips`
+    (deg) turns the pelvis that far while stepping (the shoulders staying) and `feet` the feet further,
+    both over the first `settle` cycles. -> (pose, parameters, tracks)."""
+    lead_in, lead_out = rng.uniform(0.4, 0.9), rng.uniform(0.4, 0.9)
+    T = seconds_to_frames(lead_in + seconds + lead_out)
+    pose = Pose(T)
+    t = pose.t
+    start, stop = lead_in, min(lead_in + seconds, t[-1] - 0.1)
+    walking = (t >= start) & (t < stop)
+    # a person does not reach 4 m/s (or stop from it) in two strides: from standing the speed starts at
+    # the gait's slowest and rises at most `accel` (the first stride still grows from nothing, below)
+    slowest = pace.speeds[0] + pace.accel * np.minimum(np.maximum(t - start, 0), np.maximum(stop - t, 0))
+    v = np.minimum(speed(np.clip((t - start) / (stop - start), 0.0, 1.0)), slowest)
+    # the cadence a speed asks for, then the stride that makes up the speed at that cadence (bounded
+    # strides: the cadence then gives way instead)
+    cadence = np.clip((pace.cadence[0] + pace.cadence[1] * v) * rng.uniform(0.92, 1.08), *pace.cadence_range)
+    stride = np.interp(v / cadence, pace.steps, pace.amps)
+    cadence = v / np.interp(stride, pace.amps, pace.steps)
+    # whole steps: the phase starts just past a heel strike and ends on one, as in _take_steps
+    steps = max(4 if pace.style is RUN else 2, int(round(cadence[walking].sum() / FPS)))
+    cycles = 0.5 * steps - 0.12
+    rate = np.where(walking, cadence, 0.0)
+    rate *= cycles / (rate.sum() / FPS)
+    i0, i1 = np.flatnonzero(walking)[[0, -1]]
+    done = np.cumsum(rate) / FPS
+    # the first and last strides grow and shrink over 0.35 cycles (0.7 / cadence s in _take_steps): counted
+    # in cycles, not seconds, so a cadence rising on the first step does not land it short of its heel
+    # (the root then jumped 20 cm in a frame)
+    moving = ease(done / 0.35) * ease((cycles - done) / 0.35)
+    # the body turns only on feet that step, and stops turning over half a cycle before the last step:
+    # both feet are then set down along the final heading (a stance left with one foot turned against the
+    # other was swivelled on the floor by the fade into the next segment)
+    steer = ease(done / settle) * ease((cycles - 0.6 - done) / 0.35)
+    amp = stride * moving
+    lift = ease((t - start + 0.3) / 0.3) * ease((stop + 0.3 - t) / 0.3)
+    d = pace.direction
+    phase = (0.12 if d > 0 else 0.0) + d * done
+    # the feet are planted along the heading, so a pelvis turned less than the feet is the heading less
+    # that difference, taken back up at the hips (both legs turn with the feet)
+    heading = _heading(rng, t, start, pieces, 2 * rate, v, steer) if pieces else (hips + feet) * steer
+    pose.root(yaw=-feet * steer)
+    pose.spine(bend=2.0, twist=-hips * steer)
+    # arms swing with the hips; at a run's longest strides and fastest cadence the forearms would turn
+    # 60+ degrees a frame, so they keep the swing of stride 1.2
+    arms = pace.swing_scale * (np.minimum(1.0, 1.2 / stride) if pace.style is RUN else 1.0)
+    stance = gait(pose, phase, amp, pace.style, heading, pace.lift * lift, arms)
+    _plant_ahead(pose, heading, stance, rate, pace.style)
+    for side in SIDES:
+        pose.leg(side, yaw=feet * steer)
+    pose.support = np.stack([stance["left"], stance["right"]], axis=1)
+    if d < 0:  # stepping back, a foot rolls onto its heel to lift: it no longer carries the body
+        for k, off in enumerate((0.0, 0.5)):
+            pose.support[:, k] &= (np.mod(phase + off, 1.0) > BACK_LIFT) | (amp < 0.05)
+    if pace.style is RUN:
+        pose.flight = ~(stance["left"] | stance["right"]) & (amp > 0.6 * stride)
+    full = np.flatnonzero(steer > 0.99)  # where it keeps its pace and (on a path) follows its curves
+    info = dict(steps=steps, cadence=round(float(2 * rate[walking].mean()), 3), walk=(int(i0), int(i1) + 1),
+                steady=(int(full[0]), int(full[-1]) + 1) if len(full) else (int(i0), int(i0)))
+    return pose, info, dict(heading=heading, steer=steer)
+
+
+def _events(heading: np.ndarray, bounds: list[int]) -> list[tuple[float, int, int]]:
+    """(signed turn deg, > 0 left; first frame, end frame) of the stretches between `bounds` that turn at
+    least TURN_EVENT, consecutive ones to the same side merged: the turns a caption names."""
+    out: list[tuple[float, int, int]] = []
+    joined = False
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        turn = float(heading[b - 1] - heading[a])
+        if abs(turn) < TURN_EVENT:
+            joined = False
+        elif joined and np.sign(turn) == np.sign(out[-1][0]):
+            out[-1] = (out[-1][0] + turn, out[-1][1], b)
+        else:
+            out.append((turn, a, b))
+            joined = True
+    return out
+
+
+def _sides(turns: list[float]) -> str:
+    """"left", "left, then right", "right twice", ... (a caption's order of turns)."""
+    sides = ["left" if e > 0 else "right" for e in turns]
+    if len(sides) == 2 and sides[0] == sides[1]:
+        return f"{sides[0]} twice"
+    return ", then ".join(sides)
+
+
+# per gait and speed band: (upper speed m/s, verb, how the band reads as a manner, as an afterthought)
+_BANDS = {"walk": ((1.0, "walks", " slowly", "slowly"), (1.45, "walks", "", "at a normal pace"),
+                   (9.9, "walks", " quickly", "quickly")),
+          "run": ((2.7, "jogs", "", "jogs"), (3.4, "runs", "", "runs"), (9.9, "runs", " fast", "runs fast"))}
+
+
+def _band(kind: str, v: float) -> tuple:
+    return next(b for b in _BANDS[kind] if v < b[0])
+
+
+def _travel(rng, kind: str, seconds: float) -> Action:
+    """A walk or a run along a path: steady or changing speed, straight stretches, curves and corners."""
+    pace = WALK_PACE if kind == "walk" else RUN_PACE
+    walk_s = rng.uniform(3.0, max(3.1, seconds - 1.8))
+    speed, v0, v1 = _speed_profile(rng, pace, rng.random() < 0.35)
+    pieces = _pieces(rng, pace, walk_s)
+    pose, info, tracks = _locomote(rng, pace, walk_s, speed, pieces)
+    heading = tracks["heading"]
+    i0, i1 = info["walk"]
+    bounds = [i0 + int(round(x * FPS)) for x in np.cumsum([0.0] + [p[1] for p in pieces])]
+    bounds[-1] = len(heading)  # the last stretch runs out with the lead-out
+    events = _events(heading, bounds)
+    turns = [e[0] for e in events]
+    net = float(heading[-1])
+    b0, b1 = _band(kind, v0), _band(kind, v1)
+    # a speed that changes band is named only on its own, and then "runs" covers a jog too
+    verb, adv = (b0[1], b0[2]) if b0 == b1 else ("walks" if kind == "walk" else "runs", "")
+    phrases = [f"{verb}{adv}"]
+    if not turns and b0 != b1:
+        first = f"walks {b0[3]}" if kind == "walk" else b0[3]
+        phrases = [f"{first}, then {b1[3]}", f"{first} and then {b1[3]}"]
+    elif not turns:
+        phrases += [f"{verb} forward{adv}"] + ([f"{verb} straight ahead{adv}"] if abs(net) < 15 else [])
+    elif len(turns) == 1 and abs(turns[0]) >= 300:
+        side = _sides(turns)
+        phrases = [f"{verb} in a circle to the {side}{adv}", f"{verb}{adv} in a full circle to the {side}",
+                   f"{verb} around in a {'counterclockwise' if turns[0] > 0 else 'clockwise'} circle"]
+    else:
+        side = _sides(turns)
+        phrases = [f"{verb}{adv} and turns {side}", f"{verb} forward{adv} and turns {side}"]
+        if len(turns) == 1:
+            phrases.append(f"{verb}{adv} and turns {'around ' if abs(turns[0]) >= 150 else ''}to the {side}")
+    family = "run" if kind == "run" else "walk_circle" if any(abs(e) >= 300 for e in turns) else "walk_forward"
+    params = dict(info, kind=kind, speeds=(round(v0, 3), round(v1, 3)), net_turn=round(net, 1),
+                  turns=[(round(e, 1), a, b) for e, a, b in events], pieces=[p[0] for p in pieces])
+    return Action(family, pose, phrases, params)
+
+
+def _backpedal(rng, seconds: float) -> Action:
+    """Walking backward, facing the way it came, at a steady slow speed."""
+    speed, v0, _ = _speed_profile(rng, BACK_PACE, False)
+    pose, info, _ = _locomote(rng, BACK_PACE, rng.uniform(1.5, max(1.6, min(5.0, seconds - 1.8))), speed)
+    adv = " slowly" if v0 < 0.45 else ""
+    phrases = [f"walks backward{adv}", f"walks backwards{adv}", f"moves backward{adv}", "steps back"]
+    return Action("walk_backward", pose, phrases, dict(info, kind="backpedal", speeds=(round(v0, 3),) * 2))
+
+
+def _sideways(rng, seconds: float) -> Action:
+    """Sidestepping (locomotion's own sidestep: a stance width of 0.25-0.45 m every 0.7-1.1 s)."""
+    side = str(rng.choice(["left", "right"]))
+    action = _sidestep(rng, side, TimeBudget.at_most(seconds))
+    action.phrases = [f"sidesteps to the {side}", f"steps sideways to the {side}", f"moves sideways to the {side}",
+                      f"shuffles sideways to the {side}"]
+    action.params["kind"] = "sidestep"
+    return action
+
+
+def _diagonal(rng, seconds: float) -> Action:
+    """Walking forward and to one side, 30-45 degrees off the way the body faces (the facing HumanML3D's
+    features take: across the hips and the shoulders). As people do, the pelvis turns toward the path, the
+    spine turns the shoulders back, and each hip's swing is turned the rest of the way (flexion traded for
+    abduction); the feet point between the two. Past ~35 degrees of spine twist or ~25 degrees of turned
+    swing the body corkscrews or the legs cross over each other, which bounds the offset."""
+    side = str(rng.choice(["left", "right"]))
+    sign = 1.0 if side == "left" else -1.0
+    off = rng.uniform(30.0, 45.0)
+    # the facing lies between the hips and the shoulders, and a turned swing carries the body along 0.78
+    # of its angle: the path is off the facing by about twist / 2 + 0.78 swing (1.17 times that, measured)
+    twist, swing_deg = 0.68 * off, 0.66 * off
+    pace = WALK_PACE._replace(speeds=(0.6, 1.3))
+    speed, v0, _ = _speed_profile(rng, pace, False)
+    # long enough to hold its offset for a while between turning into it and out of it (2 cycles)
+    walk_s = min(rng.uniform(4.0, 6.5), max(2.0, seconds - 1.8))
+    # turned over a whole cycle: in the first step's 0.35 cycles the pelvis jerked past 50 m/s^2
+    pose, info, tracks = _locomote(rng, pace, walk_s, speed, hips=sign * twist, feet=0.5 * sign * swing_deg,
+                                   settle=1.0)
+    swing = np.radians(sign * swing_deg) * tracks["steer"]
+    for s in SIDES.values():
+        flex = -pose.angles[:, s["hip"], 0]
+        pose.angles[:, s["hip"], 0] = -flex * np.cos(swing)
+        # abduction toward the side for the near leg, adduction for the far one: the same joint angle
+        pose.angles[:, s["hip"], 2] += flex * np.sin(swing)
+        # keep the foot's pitch (less flexion) and its sole level (the abduction rolls it)
+        pose.angles[:, s["ankle"], 0] -= flex * (1 - np.cos(swing))
+        pose.angles[:, s["ankle"], 2] -= flex * np.sin(swing)
+    phrases = [f"walks forward and to the {side}", f"walks forward and sideways to the {side}",
+               f"moves forward and to the {side}"]
+    return Action("walk_forward", pose, phrases, dict(info, kind="diagonal", side=side, offset=round(sign * off, 1),
+                                                      speeds=(round(v0, 3),) * 2))
+
+
+def _turn_on_the_spot(rng, seconds: float) -> Action:
+    """Stepping in place while turning by any angle, about 30 degrees a step (as locomotion._turn)."""
+    side = str(rng.choice(["left", "right"]))
+    angle = float(rng.uniform(30.0, 360.0))
+    steps = int(np.ceil(angle / 30.0)) + int(rng.integers(0, 2))
+    steps += steps % 2  # an even number, so the feet end side by side
+    pose, steps, _, _ = _take_steps(rng, TimeBudget.at_most(seconds), MARCH, steps, rng.uniform(1.6, 2.2), 1.0,
+                                    turn_deg=angle if side == "left" else -angle, min_steps=steps)
+    if angle < 60:
+        phrases = [f"turns slightly to the {side}", f"turns a little to the {side}"]
+    elif angle < 135:
+        phrases = [f"turns to the {side}", f"turns {side}", f"steps in place and turns {side}"]
+    elif angle < 225:
+        phrases = [f"turns around to the {side}", f"turns {side} and faces the other way"]
+    elif angle < 300:
+        phrases = [f"turns {side} in place", f"turns a long way to the {side}"]
+    else:
+        phrases = [f"turns all the way around to the {side}", f"turns in a full circle to the {side}",
+                   f"spins around to the {side} in place"]
+    return Action(f"turn_{side}", pose, phrases, dict(kind="turn", side=side, angle=round(angle, 1), steps=steps))
+
+
+def _stand(rng, seconds: float) -> Action:
+    """Standing still between moves, 1-4 s drawn (stand_idle: breathing, glances around; it lasts at least
+    2.05 s, and a span at least MIN_SPAN frames, so the shorter stands are the moves' own lead-ins and
+    lead-outs)."""
+    action = stand_idle(rng, TimeBudget.at_most(min(seconds, rng.uniform(1.0, 4.0))))
+    action.phrases = ["stands still", "stands in place", "is standing still", "stands still and looks around"]
+    action.params["kind"] = "stand"
+    return action
+
+
+_SEGMENTS = {"walk": lambda rng, s: _travel(rng, "walk", s), "run": lambda rng, s: _travel(rng, "run", s),
+             "backpedal": _backpedal, "sidestep": _sideways, "diagonal": _diagonal, "turn": _turn_on_the_spot,
+             "stand": _stand}
+
+
+def _draw_segments(rng: np.random.Generator) -> tuple[list[Action], list[int]]:
+    """Segments and the fades before each (0 before the first), until a drawn 20-60 s is reached; never
+    two stands in a row (they would read as one)."""
+    wanted = rng.uniform(*PATH_SECONDS) * FPS
+    names, p = list(KINDS), np.array(list(KINDS.values()))
+    actions: list[Action] = []
+    fades: list[int] = []
+    frames = 0
+    while frames < wanted:
+        fade = int(rng.integers(FADE_FRAMES[0], FADE_FRAMES[1] + 1)) if actions else 0
+        room = PATH_SECONDS[1] - (frames - fade) / FPS - 2.0  # 2 s kept for the holds of _padding
+        if room < 3.0:
+            break
+        allowed = p * [not (k == "stand" and actions and actions[-1].params["kind"] == "stand") for k in names]
+        kind = str(rng.choice(names, p=allowed / allowed.sum()))
+        action = _SEGMENTS[kind](rng, min(SEGMENT_SECONDS, room))
+        actions.append(action)
+        fades.append(fade)
+        frames += action.pose.T - fade
+    return actions, fades
+
+
+def _padding(actions: list[Action], fades: list[int]) -> list[tuple[int, int]]:
+    """Frames each segment is held longer (before, after) so that a cross-fade joins two standing poses
+    only (sequences._padding keeps each half of it still; a first step faded in from a stance was damped
+    short of the floor and the root jerked), and each span lasts MIN_SPAN frames."""
+    pads = [[0, 0] for _ in actions]
+    for i in range(1, len(actions)):
+        pads[i - 1][1] += max(0, fades[i] - _still(actions[i - 1].pose.angles[::-1]))
+        pads[i][0] += max(0, fades[i] - _still(actions[i].pose.angles))
+    for i, a in enumerate(actions):
+        fade_out = fades[i + 1] if i + 1 < len(fades) else 0
+        span = a.pose.T + sum(pads[i]) - fades[i] // 2 - (fade_out - fade_out // 2)
+        short = max(0, MIN_SPAN - span)
+        pads[i][0] += short // 2
+        pads[i][1] += short - short // 2
+    return [(b, e) for b, e in pads]
+
+
+def _to_span(params: dict, shift: int, length: int) -> None:
+    """The frames a segment steps on ("walk"), keeps its pace on ("steady") and turns on ("turns"), from
+    its own pose's frames to its span's (what a reader of the sequence measures)."""
+    def frame(f):
+        return int(np.clip(f + shift, 0, length))
+    for key in ("walk", "steady"):
+        if key in params:
+            params[key] = (frame(params[key][0]), frame(params[key][1]))
+    if "turns" in params:
+        params["turns"] = [(deg, frame(a), frame(b)) for deg, a, b in params["turns"]]
+
+
+def generate_path_sequence(rng: np.random.Generator) -> Clip:
+    """World joints (T, 22, 3) of 20-60 s of locomotion along a random path, 1-2 captions of the whole,
+    and one segment per move (or stand) with its own caption. Segments meet at the middle of each
+    cross-fade, as in sequences.generate_long."""
+    heading = rng.uniform(-180.0, 180.0)
+    for _ in range(100):  # redraw the rare path whose spans or total fall outside the bounds
+        actions, fades = _draw_segments(rng)
+        pads = _padding(actions, fades)
+        lengths = [a.pose.T + b + e for a, (b, e) in zip(actions, pads)]
+        total = sum(n - f for n, f in zip(lengths, fades))
+        spans = [n - f // 2 - (g - g // 2) for n, f, g in zip(lengths, fades, fades[1:] + [0])]
+        if PATH_SECONDS[0] * FPS <= total <= PATH_SECONDS[1] * FPS and max(spans) <= MAX_SPAN:
+            break
+    else:
+        raise RuntimeError("no path sequence of 20-60 s in 100 draws")
+    poses = [hold(a.pose, *p) for a, p in zip(actions, pads)]
+    pose, cuts, firsts = poses[0], [0], [0]
+    for nxt, fade in zip(poses[1:], fades[1:]):
+        cuts.append(pose.T - fade + fade // 2)
+        firsts.append(pose.T - fade)
+        pose = blend(pose, nxt, fade)
+    cuts.append(pose.T)
+    for a, (before, _), first, cut, end in zip(actions, pads, firsts, cuts, cuts[1:]):
+        _to_span(a.params, first + before - cut, end - cut)
+    pose.angles[:, 0, 1] += heading
+    joints = pose_to_joints(pose)
+    segments = [Segment(a.family, s, e, a.params, single_caption(a.phrases, rng))
+                for a, s, e in zip(actions, cuts[:-1], cuts[1:])]
+    return Clip(joints, sequence_captions([a.phrases for a in actions], rng), segments)

@@ -1,0 +1,129 @@
+"""One stream's control: the game's request (a target from control/targets.py, or none), the root pose the stream's
+frames have reached, and the control vector its next token is picked with.
+
+    steering = Steering(spec, dims, context)     # context: the stream's endless.StreamContext
+    steering.request(lambda s: WalkTo((4.0, 2.0)))     # from any thread
+    joints = steering.update(index, joints, frame_joints)  # after each token's frames: the game-owned root placed,
+                                                 # the pose read, the next token's control handed to the context
+
+The pose is that of the next frame, which the frames so far fix, so the control of token j is read from the root at
+frame j * downsample exactly as training read it from the data (control/vector.py). A stream steered this way makes
+its frames every token (a chunk of 1): a pose a few tokens old would steer from where the character was.
+"""
+from __future__ import annotations
+
+import threading
+from typing import Callable
+
+import numpy as np
+
+from ..bundle.sections import ControlSpec, ModelDims
+from ..kinematics.frames import FrameJoints
+from .targets import FollowPath, GameRoot, Steer, WalkTo
+from .vector import control_dim, encode
+
+
+class Steering:
+    def __init__(self, spec: ControlSpec, dims: ModelDims, context):
+        if spec.dim != control_dim(spec.horizon):
+            raise ValueError(f"control dim {spec.dim} does not match a horizon of {spec.horizon} tokens")
+        self.spec, self.fps, self.context = spec, dims.fps, context
+        self._lock = threading.Lock()     # a request from the game's thread and the stream's update never interleave
+        self.times = np.arange(1, spec.horizon + 1) * dims.downsample / dims.fps    # seconds ahead
+        self.target = None
+        self.pose = np.zeros(3)            # the root of the next frame: frame 0 stands at the origin facing +z
+        self.frame = 0                     # the next frame's index
+
+    def vector(self) -> np.ndarray:
+        """The control vector of the next token: zeros without a target."""
+        if self.target is None:
+            return np.zeros(self.spec.dim, np.float32)
+        if isinstance(self.target, GameRoot):
+            return encode(self.pose, self.target.future(self.pose, self.times, self.fps, self.frame))
+        return encode(self.pose, self.target.future(self.pose, self.times))
+
+    def request(self, change: Callable[["Steering"], object]) -> None:
+        """`change(self)` -> the new target (None: no control); the next token is picked with it."""
+        with self._lock:
+            self.target = change(self)
+            self.context.steer(self.vector())
+
+    def update(self, index: int, joints: np.ndarray, frames: FrameJoints) -> np.ndarray:
+        """After a stream's new frames: `place` them, and hand the next token's control to the stream's context."""
+        with self._lock:
+            joints = self.place(index, joints, frames)
+            self.context.steer(self.vector())
+            return joints
+
+    def place(self, index: int, joints: np.ndarray, frames: FrameJoints) -> np.ndarray:
+        """A stream's new frames (n, J, 3), frame numbers index..index + n - 1, and the FrameJoints that made them
+        -> the frames as shown: moved onto the game's capsule when the game owns the root. Then the next frame's
+        pose is read (where the shown frames leave the root)."""
+        pose = frames.next_pose()
+        if isinstance(self.target, GameRoot) and self.target.pose is not None and len(joints):
+            # each frame's root onto the capsule there; the next frame's pose from the capsule too
+            capsule = np.stack([self.target.at(f)[:2] for f in range(index, index + len(joints))])
+            offsets = (capsule - joints[:, 0, [0, 2]]).astype(joints.dtype)
+            joints = joints.copy()
+            joints[..., 0] += offsets[:, None, 0]
+            joints[..., 2] += offsets[:, None, 1]
+            pose[:2] = self.target.at(index + len(joints))[:2]
+        self.pose, self.frame = pose, index + len(joints)
+        return joints
+
+
+class Steerable:
+    """Where a character goes, for a stream or a crowd's character: `steering` is its Steering, or None where its
+    bundle's model has no control (`_why_not` then says why)."""
+
+    steering: Steering | None
+
+    def _steer(self, change: Callable[[Steering], object]) -> None:
+        if self.steering is None:
+            raise ValueError(self._why_not())
+        self._check_open()
+        self.steering.request(change)
+
+    def _why_not(self) -> str:
+        return ("this bundle's model was trained without control (its manifest has no 'control' section): its "
+                "characters go where the model walks them")
+
+    def _check_open(self) -> None:
+        """Raise ValueError where the stream or character follows no more requests."""
+
+    def walk_to(self, goal, speed: float = 1.3) -> None:
+        """Walk to `goal` (world x, z in metres) at `speed` m/s, then stand there doing the prompt."""
+        target = WalkTo(goal, speed)
+        self._steer(lambda s: target)
+
+    def follow_path(self, points, speed: float = 1.3) -> None:
+        """Follow the polyline `points` ((x, z) in metres) at `speed` m/s, from the point nearest the character."""
+        target = FollowPath(points, speed)
+        self._steer(lambda s: target)
+
+    def steer(self, velocity, facing=None) -> None:
+        """A joystick: move at world `velocity` (vx, vz) m/s, facing `facing` (a world direction) if given."""
+        target = Steer(velocity, facing)
+        self._steer(lambda s: target)
+
+    def set_root(self, x, z, heading) -> None:
+        """The game owns the root: its capsule is at (x, z), facing `heading` (radians; 0 faces +z, pi/2 +x) at the
+        next frame this character makes; its frames are put on the capsule, and it moves as the capsule moves."""
+        probe = GameRoot()
+        probe.place(x, z, heading, 0)               # checks the numbers before anything changes
+
+        def change(s: Steering):
+            target = s.target if isinstance(s.target, GameRoot) else GameRoot()
+            target.place(x, z, heading, s.frame)
+            return target
+        self._steer(change)
+
+    def release(self) -> None:
+        """Back to text only: the character goes where the model walks it."""
+        self._steer(lambda s: None)
+
+    @property
+    def arrived(self) -> bool:
+        """Whether a walk_to goal or a path's end is reached (False with any other request, or none)."""
+        target = self.steering.target if self.steering is not None else None
+        return bool(target is not None and target.arrived)

@@ -1,0 +1,196 @@
+"""What a game asks of a character's root, turned into the wanted root poses of the next `horizon` tokens
+(control/vector.py encodes them). One class per request; each is asked again at every token, from the root pose the
+character has then, so the character is steered back whenever it drifts (closed loop, as motion matching's
+trajectory is re-read every frame).
+
+    WalkTo(goal, speed)         a straight line to a point on the floor, then stand there
+    FollowPath(points, speed)   along a polyline (a navmesh path), facing the way it goes, standing at its end
+    Steer(velocity, facing)     a joystick: a world velocity, and optionally a facing that differs (strafing)
+    GameRoot()                  the game moves the capsule (`place`); the character is asked to move as it moves
+
+Poses are (x, z, yaw) as in control/vector.py; speeds in m/s; `times` are the seconds of the horizon's steps.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+from ..checks import as_real, shown
+
+ARRIVE = 0.3          # metres: a goal or a path's end this close is reached, and the character stands
+MIN_SPEED = 0.05      # m/s: slower is standing (WalkTo and FollowPath would never arrive)
+MAX_SPEED = 10.0      # m/s: more than any human runs
+MAX_POINTS = 100_000  # path points
+MAX_COORD = 1e6       # metres from the origin: beyond, float32 joints lose centimetres
+
+
+def _coordinates(value) -> np.ndarray:
+    """`value` as a float64 array if it holds only real numbers (a numpy array of numbers, or nested lists and
+    tuples of them); else ValueError. Strings and booleans are refused, though numpy would convert them."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "fiu":
+            raise ValueError(f"numbers, not an array of {value.dtype}")
+        return value.astype(np.float64)
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, (list, tuple)):
+            stack.extend(item)
+        elif isinstance(item, (bool, np.bool_)) or not isinstance(item, numbers.Real):
+            raise ValueError(f"numbers, not {type(item).__name__}")
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError("a regular array of numbers") from None
+
+
+def _point(name: str, value) -> np.ndarray:
+    try:
+        p = _coordinates(value)
+    except ValueError as e:
+        raise ValueError(f"{name} must be (x, z) in metres ({e}), got {shown(value)}") from None
+    if p.shape != (2,) or not np.all(np.isfinite(p)) or np.abs(p).max() > MAX_COORD:
+        raise ValueError(f"{name} must be (x, z): two finite numbers within {MAX_COORD:g} m, got {shown(value)}")
+    return p
+
+
+def _speed(speed) -> float:
+    return as_real("speed", speed, f"in m/s, from {MIN_SPEED:g} to {MAX_SPEED:g}", MIN_SPEED, MAX_SPEED)
+
+
+def _yaw_of(direction: np.ndarray) -> float:
+    return math.atan2(direction[0], direction[1])
+
+
+def _stand(now: np.ndarray, steps: int) -> np.ndarray:
+    return np.repeat(np.asarray(now, np.float64)[None], steps, axis=0)
+
+
+class WalkTo:
+    """Go to `goal` (x, z) at `speed`, facing it; within ARRIVE of it, stand (facing as it arrived) until given
+    another request."""
+
+    def __init__(self, goal, speed: float = 1.3):
+        self.goal, self.speed, self.arrived = _point("goal", goal), _speed(speed), False
+
+    def future(self, now: np.ndarray, times: np.ndarray) -> np.ndarray:
+        away = self.goal - now[:2]
+        dist = float(np.hypot(*away))
+        self.arrived = self.arrived or dist < ARRIVE
+        if self.arrived:
+            return _stand(now, len(times))
+        direction = away / dist
+        xz = now[:2] + direction * np.minimum(self.speed * times, dist)[:, None]
+        return np.concatenate([xz, np.full((len(times), 1), _yaw_of(direction))], axis=1)
+
+
+class FollowPath:
+    """Along the polyline `points` ((n, 2), n >= 2) at `speed`, from the point nearest the character onward: the
+    wanted poses lie ahead of that point on the path, so a character that drifts off is led back onto it. Faces the
+    path's direction; stands at its end. Progress only moves forward (a path that crosses itself is followed in
+    order), searching ahead a bounded stretch each token."""
+
+    LOOKAHEAD = 4.0       # metres of path searched past the progress so far for the nearest point
+
+    def __init__(self, points, speed: float = 1.3):
+        if not isinstance(points, np.ndarray) and (not isinstance(points, (list, tuple)) or len(points) > MAX_POINTS):
+            raise ValueError(f"path must be a list of 2 to {MAX_POINTS} (x, z) points in metres, got "
+                             f"{shown(points) if not isinstance(points, (list, tuple)) else f'{len(points)} points'}")
+        try:
+            p = _coordinates(points)
+        except ValueError as e:
+            raise ValueError(f"path must be a list of (x, z) points in metres ({e})") from None
+        if p.ndim != 2 or p.shape[1] != 2 or not 2 <= len(p) <= MAX_POINTS or not np.all(np.isfinite(p)) \
+                or np.abs(p).max() > MAX_COORD:
+            raise ValueError(f"path must be 2 to {MAX_POINTS} (x, z) points, finite and within {MAX_COORD:g} m, "
+                             f"got {'shape ' + str(p.shape) if p.ndim != 2 or p.shape[-1:] != (2,) else len(p)}")
+        seg = np.diff(p, axis=0)
+        length = np.hypot(seg[:, 0], seg[:, 1])
+        keep = np.concatenate([[True], length > 1e-6])           # repeated points add no direction
+        self.points = p[keep]
+        if len(self.points) < 2:
+            raise ValueError("path must have two distinct points")
+        seg = np.diff(self.points, axis=0)
+        self.lengths = np.hypot(seg[:, 0], seg[:, 1])
+        self.directions = seg / self.lengths[:, None]
+        self.starts = np.concatenate([[0.0], np.cumsum(self.lengths)])   # arc length at each point
+        self.total = float(self.starts[-1])
+        self.speed, self.progress, self.arrived = _speed(speed), 0.0, False
+
+    def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Arc lengths (n,) -> points (n, 2) and the path's yaw there (the segment's direction)."""
+        s = np.clip(s, 0.0, self.total)
+        k = np.clip(np.searchsorted(self.starts, s, side="right") - 1, 0, len(self.lengths) - 1)
+        xz = self.points[k] + self.directions[k] * (s - self.starts[k])[:, None]
+        return xz, np.arctan2(self.directions[k, 0], self.directions[k, 1])
+
+    def nearest(self, xz: np.ndarray) -> float:
+        """Arc length of the point of the path nearest `xz`, searched from the progress so far to LOOKAHEAD on."""
+        first = max(0, int(np.searchsorted(self.starts, self.progress, side="right")) - 1)
+        last = int(np.searchsorted(self.starts, self.progress + self.LOOKAHEAD, side="right"))
+        k = np.arange(first, min(last, len(self.lengths)) if last > first else first + 1)
+        along = np.clip(((xz - self.points[k]) * self.directions[k]).sum(1), 0.0, self.lengths[k])
+        foot = self.points[k] + self.directions[k] * along[:, None]
+        best = int(np.argmin(np.hypot(*(foot - xz).T)))
+        return float(max(self.progress, self.starts[k[best]] + along[best]))
+
+    def future(self, now: np.ndarray, times: np.ndarray) -> np.ndarray:
+        self.progress = self.nearest(now[:2])
+        end = self.points[-1] - now[:2]
+        self.arrived = self.arrived or (self.total - self.progress < ARRIVE and float(np.hypot(*end)) < ARRIVE)
+        if self.arrived:
+            return _stand(now, len(times))
+        xz, yaw = self.at(self.progress + self.speed * times)
+        return np.concatenate([xz, yaw[:, None]], axis=1)
+
+
+class Steer:
+    """Move at world `velocity` (vx, vz) m/s; face `facing` (a world direction) if given, else the way it moves
+    (or as it faces now when standing)."""
+
+    def __init__(self, velocity, facing=None):
+        self.velocity = _point("velocity", velocity)
+        if np.hypot(*self.velocity) > MAX_SPEED:
+            raise ValueError(f"velocity must be at most {MAX_SPEED:g} m/s, got {np.hypot(*self.velocity):.3g}")
+        self.facing = None if facing is None else _point("facing", facing)
+        if self.facing is not None and np.hypot(*self.facing) < 1e-6:
+            raise ValueError("facing must be a direction (x, z), not (0, 0)")
+        self.arrived = False
+
+    def future(self, now: np.ndarray, times: np.ndarray) -> np.ndarray:
+        xz = now[:2] + self.velocity * times[:, None]
+        moving = np.hypot(*self.velocity) > 0.2
+        yaw = _yaw_of(self.facing) if self.facing is not None else _yaw_of(self.velocity) if moving else now[2]
+        return np.concatenate([xz, np.full((len(times), 1), yaw)], axis=1)
+
+
+class GameRoot:
+    """The game owns the root (a capsule it moves itself): `place(x, z, yaw, frame)` says where the capsule is at
+    frame `frame`; the character is asked to move as the capsule's last two placements extrapolate, and its frames
+    are put where the capsule is (Steering.place)."""
+
+    def __init__(self):
+        self.pose: np.ndarray | None = None          # the capsule at frame `frame`
+        self.velocity = np.zeros(3)                  # per frame: dx, dz, dyaw
+        self.frame = 0
+        self.arrived = False
+
+    def place(self, x, z, yaw, frame: int) -> None:
+        pose = np.array([*_point("root", (x, z)), as_real("heading", yaw, "in radians, finite", -1e6, 1e6)])
+        if self.pose is not None and frame > self.frame:
+            step = pose - self.pose
+            step[2] = math.remainder(step[2], 2 * math.pi)
+            self.velocity = step / (frame - self.frame)
+        self.pose, self.frame = pose, frame
+
+    def at(self, frame: int) -> np.ndarray:
+        """The capsule's pose at `frame`, extrapolated from its last placement."""
+        return self.pose + self.velocity * (frame - self.frame)
+
+    def future(self, now: np.ndarray, times: np.ndarray, fps: float, frame: int) -> np.ndarray:
+        """The capsule's poses `times` seconds after frame `frame` (the character's next frame), as extrapolated."""
+        if self.pose is None:
+            return _stand(now, len(times))
+        return np.stack([self.at(frame + t * fps) for t in times])

@@ -1,0 +1,257 @@
+"""Control: the vector the step graph reads (one writer for training targets and the game's requests), the requests
+themselves (goal, path, joystick, game-owned capsule), and controlled streams and crowds, on the tiny trained bundle
+(whose model has control)."""
+import math
+
+import numpy as np
+import pytest
+from toy_bundle import toy_bundle  # noqa: F401  (a fixture)
+
+from mogo_runtime import MotionGenerator
+from mogo_runtime.control import FollowPath, GameRoot, Steer, WalkTo
+from mogo_runtime.control.targets import ARRIVE
+from mogo_runtime.control.vector import control_dim, decode, encode, root_poses, to_local, to_world, token_controls
+from mogo_runtime.crowd import Crowd
+from mogo_runtime.kinematics.frames import RootIntegrator
+from mogo_runtime.kinematics.skeleton import HUMANML3D
+
+TIMES = np.arange(1, 6) * 0.2
+
+
+def walking_features(T=40, speed=1.2, turn=0.0, fps=20.0):
+    """Features whose root walks forward at `speed` m/s, turning `turn` rad per frame (the rest zeros)."""
+    f = np.zeros((T, 263), np.float32)
+    f[:, 0] = -turn / 2          # the features' half-angle velocity: yaw = -2 * angle
+    f[:, 2] = speed / fps        # forward, in the root's frame
+    f[:, 3] = 0.9
+    return f
+
+
+def test_the_local_frame_is_the_features_frame():
+    """A root that walks forward (feature z velocity) moves along its facing (sin yaw, cos yaw: the step into frame
+    t along frame t's, as the features integrate), and left (+x) is to its left; to_world undoes to_local; decode
+    undoes encode."""
+    poses = root_poses(walking_features(turn=0.05))
+    step = poses[11, :2] - poses[10, :2]
+    assert np.allclose(step / np.linalg.norm(step), [math.sin(poses[11, 2]), math.cos(poses[11, 2])], atol=1e-6)
+    now = np.array([1.0, -2.0, 0.7])
+    pts = np.random.default_rng(0).normal(size=(5, 2))
+    assert np.allclose(to_world(now, to_local(now, pts)), pts)
+    assert np.allclose(to_local(np.array([0, 0, math.pi / 2]), [[1.0, 0.0]]), [[0.0, 1.0]])   # facing +x: +x is ahead
+    future = np.concatenate([pts, np.random.default_rng(1).uniform(-3, 3, (5, 1))], axis=1)
+    back = decode(now, encode(now, future))
+    assert np.allclose(back[:, :2], future[:, :2], atol=1e-5)
+    assert np.allclose(np.angle(np.exp(1j * (back[:, 2] - future[:, 2]))), 0, atol=1e-5)
+
+
+def test_training_targets_are_the_clip_s_own_future():
+    f = walking_features(T=41, speed=1.0)
+    rows = token_controls(root_poses(f[:40]), downsample=4, horizon=5)
+    assert rows.shape == (11, control_dim(5)) and (rows[:, 0] == 1).all()
+    per_step = rows[0, 1:].reshape(5, 4)
+    assert np.allclose(per_step[:, 0], 0, atol=1e-6)                      # straight ahead: no sideways
+    assert np.allclose(per_step[:, 1], [0.2, 0.4, 0.6, 0.8, 1.0], atol=1e-5)   # 1 m/s, tokens of 0.2 s
+    assert np.allclose(per_step[:, 3], 1)                                 # facing unchanged
+    last = rows[-1, 1:].reshape(5, 4)                                     # past the end: stopped
+    assert np.allclose(last[:, :2], 0, atol=1e-6)
+
+
+def test_the_next_pose_of_a_stream_is_where_the_whole_motion_puts_it():
+    f = walking_features(T=44, speed=1.4, turn=0.03)
+    poses = root_poses(f)
+    root = RootIntegrator(HUMANML3D)
+    for i in range(0, 40, 4):
+        root.push(f[i:i + 4])
+        assert np.allclose(root.next_pose(), poses[i + 4], atol=1e-12)
+
+
+def test_walk_to_goes_straight_then_stands():
+    target = WalkTo((3.0, 4.0), speed=1.0)
+    future = target.future(np.array([0.0, 0.0, 0.0]), TIMES)
+    assert np.allclose(future[:, :2], np.outer(TIMES, [0.6, 0.8])) and np.allclose(future[:, 2], math.atan2(3, 4))
+    near = np.array([3.0, 4.0 - 0.5, 1.0])
+    assert np.allclose(target.future(near, TIMES)[-1, :2], [3.0, 4.0])          # stops at the goal
+    assert not target.arrived
+    there = np.array([3.0, 4.0 - ARRIVE / 2, 1.0])
+    assert np.allclose(target.future(there, TIMES), there) and target.arrived  # stands where it is, as it faces
+    assert np.allclose(target.future(there + [1.0, 0, 0], TIMES), there + [1.0, 0, 0])   # arrived stays arrived
+
+
+def test_follow_path_leads_back_onto_the_path_and_only_forward():
+    path = FollowPath([(0, 0), (0, 4), (4, 4)], speed=2.0)
+    off = np.array([0.5, 1.0, 0.0])                    # half a metre beside the first leg, a metre along
+    future = path.future(off, TIMES)
+    assert np.allclose(future[:, 0], 0) and np.allclose(future[:, 1], 1.0 + 2.0 * TIMES)   # on the path, ahead
+    assert path.progress == pytest.approx(1.0)
+    corner = path.future(np.array([0.0, 3.5, 0.0]), TIMES)
+    assert np.allclose(corner[-1, :2], [1.5, 4.0]) and corner[-1, 2] == pytest.approx(math.pi / 2)   # turns the corner
+    path.future(np.array([0.0, 0.0, 0.0]), TIMES)     # back at the start: progress is kept
+    assert path.progress == pytest.approx(3.5)
+    end = path.future(np.array([3.9, 4.0, 1.0]), TIMES)
+    assert path.arrived and np.allclose(end, [3.9, 4.0, 1.0])
+
+
+def test_steer_and_the_game_s_capsule():
+    steer = Steer((1.0, 0.0), facing=(0.0, 1.0))       # strafing: moving +x, facing +z
+    future = steer.future(np.array([0.0, 0.0, 0.3]), TIMES)
+    assert np.allclose(future[:, 0], TIMES) and np.allclose(future[:, 2], 0.0)
+    assert np.allclose(Steer((0.0, 2.0)).future(np.zeros(3), TIMES)[:, 2], 0.0)     # faces the way it moves
+    capsule = GameRoot()
+    capsule.place(0.0, 0.0, 0.0, frame=10)
+    capsule.place(0.1, 0.0, 0.2, frame=12)             # 5 cm and 0.1 rad a frame
+    assert np.allclose(capsule.at(16), [0.3, 0.0, 0.6])
+    assert np.allclose(capsule.future(np.zeros(3), TIMES, fps=20.0, frame=12)[0], [0.3, 0.0, 0.6])   # 4 frames on
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: WalkTo((float("nan"), 0)), "goal must be"), (lambda: WalkTo((1, 2, 3)), "goal must be"),
+    (lambda: WalkTo((1, 2), speed=0), "speed must be"), (lambda: WalkTo((1, 2), speed=99), "speed must be"),
+    (lambda: FollowPath([(0, 0)]), "path must be"), (lambda: FollowPath([(0, 0), (0, 0)]), "two distinct"),
+    (lambda: FollowPath("abc"), "path must be"), (lambda: Steer((30, 0)), "at most"),
+    (lambda: Steer((1, 0), facing=(0, 0)), "facing must be a direction"),
+    (lambda: GameRoot().place(0, 0, float("inf"), 0), "heading must be")])
+def test_bad_requests_are_refused_with_what_is_wrong(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+def steered_frames(source, requests, ticks):
+    """Joints (T, J, 3) of a stream or crowd character given `requests` {tick: callable(character)}."""
+    out = []
+    for t in range(ticks):
+        if t in requests:
+            requests[t](source["character"])
+        out.append(source["next"]())
+    return np.concatenate(out)
+
+
+def test_a_crowd_character_goes_where_a_lone_stream_goes(tiny_bundle):
+    """The same requests at the same tokens: the crowd's character and the lone stream give the same joints."""
+    requests = {0: lambda c: c.walk_to((1.0, 2.0), 1.5), 7: lambda c: c.follow_path([(0, 0), (1, 1), (3, 0)], 2.0),
+                15: lambda c: c.steer((0.5, -1.0), facing=(1.0, 0.0)), 22: lambda c: c.release(),
+                26: lambda c: c.set_root(0.2, 0.1, 0.5)}
+    gen = MotionGenerator(tiny_bundle, variant="portable")
+    stream = gen.stream("a person walks forward", seed=3)
+    per_token = lambda: np.stack([next(stream).joints for _ in range(gen.dims.downsample)])   # noqa: E731
+    lone = steered_frames({"character": stream, "next": per_token}, requests, 30)
+    crowd = Crowd(gen, chunk=1)
+    other = crowd.add("a person waves", seed=9)
+    other.walk_to((-2.0, 0.0))
+    walker = crowd.add("a person walks forward", seed=3)
+    ticked = steered_frames({"character": walker, "next": lambda: crowd.tick()[walker].joints}, requests, 30)
+    assert len(ticked) == len(lone) and np.array_equal(ticked, lone)
+
+
+def test_the_game_owns_the_root(tiny_bundle):
+    """set_root before every token: each frame's root is where the capsule is (extrapolated within a token)."""
+    gen = MotionGenerator(tiny_bundle, variant="fp32")
+    stream = gen.stream("a person walks forward", seed=1)
+    ds = gen.dims.downsample
+    capsule = lambda f: (0.03 * f, 0.01 * f, 0.02 * f)    # noqa: E731  straight at 0.6 m/s, turning
+    frames = []
+    for t in range(20):
+        stream.set_root(*capsule(len(frames)))
+        frames += [next(stream) for _ in range(ds)]
+    roots = np.array([f.joints[0, [0, 2]] for f in frames])
+    want = np.array([capsule(f.index)[:2] for f in frames])
+    assert np.abs(roots[ds:] - want[ds:]).max() < 1e-5    # from the second placement on, the velocity is known
+
+
+def test_requests_need_a_model_with_control_and_an_open_stream(tiny_bundle, toy_bundle):  # noqa: F811
+    stream = MotionGenerator(toy_bundle).stream("a person walks", seed=0)     # the toy model has no control
+    with pytest.raises(ValueError, match="trained without control"):
+        stream.walk_to((1.0, 1.0))
+    stream = MotionGenerator(tiny_bundle).stream("a person walks", seed=0)
+    with pytest.raises(ValueError, match="goal must be"):
+        stream.walk_to("there")
+    stream.close()
+    with pytest.raises(ValueError, match="closed"):
+        stream.walk_to((1.0, 1.0))
+    crowd = Crowd(MotionGenerator(tiny_bundle, variant="portable"))
+    gone = crowd.add("a person walks")
+    crowd.remove(gone)
+    with pytest.raises(ValueError, match="not in this crowd"):
+        gone.steer((1.0, 0.0))
+
+
+# --------------------------------------------------------------------------------------------- requests as JSON lines
+
+@pytest.mark.parametrize("line, prompt, control", [
+    ("a person runs", "a person runs", None),
+    ('{"prompt": "a person runs", "goal": [4, 2]}', "a person runs", {"goal": [4, 2]}),
+    ('{"path": [[0, 0], [2, 1]], "speed": 2.5}', None, {"path": [[0, 0], [2, 1]], "speed": 2.5}),
+    ('{"velocity": [0, 1.4], "facing": [1, 0]}', None, {"velocity": [0, 1.4], "facing": [1, 0]}),
+    ('{"root": [1, 2, 0.5]}', None, {"root": [1, 2, 0.5]}),
+    ('  {"release": true}', None, {"release": True}),
+])
+def test_a_request_line_is_a_prompt_or_a_json_object(line, prompt, control):
+    from mogo_runtime.control.commands import parse_request
+
+    r = parse_request(line)
+    assert (r.prompt, r.control) == (prompt, control)
+
+
+@pytest.mark.parametrize("line, message", [
+    ('{"goal": [1, 2]', "not JSON"),
+    ('{"goal": [1, 2]} {"goal": [3, 4]}', "not JSON"),          # one object per line
+    ('{"gaol": [1, 2]}', r"unknown field\(s\) \['gaol'\]"),
+    ('{"goal": [1, 2], "path": [[0, 0], [1, 1]]}', "one control at a time"),
+    ('{"goal": [1, 2], "facing": [1, 0]}', "facing need velocity"),
+    ('{"speed": 2}', "speed need goal or path"),
+    ('{"release": 1}', "release must be true"),
+    ('{"prompt": 5}', "prompt must be a string"),
+    ('{"prompt": ""}', "empty"),
+    ("{}", "needs a prompt or a control"),
+    ("{" + '"goal":' + "[" * 100_000 + "]" * 100_000 + "}", "not JSON"),   # nested past the parser's depth
+])
+def test_a_bad_request_line_names_what_is_wrong(line, message):
+    from mogo_runtime.control.commands import parse_request
+
+    with pytest.raises(ValueError, match=message):
+        parse_request(line)
+
+
+@pytest.mark.parametrize("request_, message", [
+    ({"goal": ["1", 2]}, r"goal must be \(x, z\) in metres \(numbers, not str\)"),
+    ({"goal": [True, 2]}, "numbers, not bool"),
+    ({"goal": [1, 2], "speed": 0}, "speed must be in m/s, from 0.05 to 10"),
+    ({"path": [[0, 0]]}, "2 to 100000"),
+    ({"path": "there"}, "path must be a list"),
+    ({"velocity": [50, 0]}, "at most 10 m/s"),
+    ({"root": [1, 2]}, r"root must be \[x, z, heading\]"),
+    ({"root": [1, 2, "north"]}, "heading must be a number"),
+])
+def test_a_bad_control_changes_nothing(tiny_bundle, request_, message):
+    from mogo_runtime.control.commands import Request
+
+    stream = MotionGenerator(tiny_bundle).stream("a person walks", seed=0)
+    stream.walk_to((3.0, 0.0))
+    before = stream.steering.target
+    with pytest.raises(ValueError, match=message):
+        Request("a person jumps", request_).apply(stream)
+    assert stream.steering.target is before and stream.text == "a person walks"
+
+
+def test_cli_follow_reads_control_requests(tiny_bundle, toy_bundle, capsys, monkeypatch):  # noqa: F811
+    import io
+    import json
+
+    from mogo_runtime.cli import main
+
+    args = ["stream", "a person walks forward", "--bundle", str(tiny_bundle), "--seconds", "3", "--follow"]
+    monkeypatch.setattr("sys.stdin", io.StringIO('{"goal": [0.0, 0.2], "speed": 1.0}\n'))
+    assert main(args) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    events = [x for x in lines if "event" in x]
+    assert [e["event"] for e in events] == ["control", "arrived"], events      # 0.2 m ahead: within ARRIVE at once
+    assert events[0]["request"] == {"goal": [0.0, 0.2], "speed": 1.0} and events[0]["token"] == 1
+    assert len([x for x in lines if "frame" in x and "event" not in x]) == 60
+
+    monkeypatch.setattr("sys.stdin", io.StringIO('{"goal": [1, "x"]}\n'))
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "goal must be (x, z)" in err, err
+
+    monkeypatch.setattr("sys.stdin", io.StringIO('{"prompt": "a person jumps", "goal": [1, 1]}\n'))
+    assert main(args[:3] + [str(toy_bundle)] + args[4:]) == 2
+    assert "trained without control" in capsys.readouterr().err
