@@ -118,9 +118,25 @@ def rig_case(rng) -> dict:
 def stdin_case(rng) -> dict:
     """`mogo stream --follow` with what a game (or a broken pipe) might write to its stdin."""
     lines = [_pick(rng, TEXTS[:14]) for _ in range(rng.integers(0, 5))]
-    how = _pick(rng, ["lines", "lines", "flood", "no newline", "huge line", "binary", "closed", "crlf", "json"])
+    how = _pick(rng, ["lines", "lines", "flood", "no newline", "huge line", "binary", "closed", "crlf", "json",
+                      "control"])
+    if how == "control":        # requests where to go (docs/bundle.md, "Control"), each field hostile or not
+        lines = [json.dumps({k: _pick(rng, pool) for k, pool in _pick(rng, CONTROL_REQUESTS).items()
+                             if rng.random() < 0.9}, default=str) for _ in range(rng.integers(1, 5))]
     return {"kind": "stdin", "how": how, "lines": [t if isinstance(t, str) else str(t) for t in lines],
             "size": int(rng.integers(1, 200_000))}
+
+
+POINTS = [[1.0, 2.0], [0, 0], [1e308, 0], [-1e7, 3], ["1", 2], [True, 0], [1, 2, 3], [], None, "there", [[1, 2]], 5]
+CONTROL_REQUESTS = [  # field -> values a game (or an attacker) might send; json.dumps writes nan/inf as NaN/Infinity
+    {"goal": POINTS, "speed": [1.3, 0, -1, 0.05, 10, 11, float("nan"), "fast", None, 1e308], "prompt": TEXTS[:6]},
+    {"path": [[[0, 0], [1, 1]], [[0, 0]], [[0, 0], [0, 0]], [[0, 0], [float("inf"), 1]], [[i, i % 3] for i in
+              range(3000)], [[0, 0], ["a", 1]], [[[0, 0]]], "path", {}], "speed": [2.5, 0.01, 99]},
+    {"velocity": POINTS, "facing": POINTS + [[0, 0]]},
+    {"root": [[1, 2, 0.5], [1, 2], [0, 0, float("nan")], [0, 0, 1e9], ["a", 0, 0], [[0, 0], 0, 0]]},
+    {"release": [True, False, 1, "yes", None]},
+    {"gaol": [[1, 2]], "prompt": ["a person walks"]},
+]
 
 
 def _rig_file(case: dict, out: Path) -> Path:

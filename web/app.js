@@ -1,17 +1,19 @@
 // The page: pick a bundle variant, type a prompt, watch the skeleton move as frames stream in, change the prompt
-// mid-stream, download BVH / JSON. Generation runs in worker.js; this module draws (viewer.js) and keeps the
-// motion on screen for the downloads (files.js).
+// mid-stream, send the character where you click on the ground (bundles with control: walk.js), download BVH / JSON.
+// Generation runs in worker.js; this module draws (viewer.js) and keeps the motion on screen for the downloads
+// (files.js).
 //
 // URL parameters: bundle (a folder relative to the repository root, or an absolute URL; default bundles/base),
 // variant (default int8 where offered, else fp32), threads (onnxruntime-web threads; more than 1 only where the
 // page is cross-origin isolated), prompt, seed.
 //
-// window.mogoPage is what the browser test reads (web/test/page.test.mjs): the motion on screen with its tokens,
-// and the timings.
+// window.mogoPage is what the browser test reads (web/test/page.test.mjs): the motion on screen with its tokens (a
+// stream's as they are picked), its walkTo requests, the camera, and the timings.
 
 import { Bundle, urlLoader } from '../js/src/index.js';
 import { bvhText, download, fileStem, jsonText } from './files.js';
 import { SkeletonViewer } from './viewer.js';
+import { GoalMarker, cameraState, onGroundClick } from './walk.js';
 
 const AHEAD_SECONDS = 1;   // how far a stream is decoded ahead of what is shown: a new prompt shows within this
 // Variants this runtime is known to run (its tests cover them, js/test): fp32, and int8 made by dynamic
@@ -36,7 +38,8 @@ const page = {
   endless: false,
   busy: null,          // 'loading' | 'generating' | 'streaming' | null
   mode: 'clip',        // the last of Generate clip / Stream pressed: what Enter does when no stream runs
-  motion: null,        // what is on screen: {kind, texts, seed, variant, fps, tokens, levels, switches, frames[]}
+  motion: null,        // on screen: {kind, texts, seed, variant, fps, tokens, levels, switches, frames[], picked[],
+                       // walks: [{goal, token, frame}], arrivals: [frame]}
   runId: 0,
   shows: 0,            // motions put on screen so far
   stats: {},
@@ -44,7 +47,7 @@ const page = {
   renderFps: 0,
 };
 const worker = new Worker(new URL('./worker.js', import.meta.url), { type: 'module' });
-let viewer = null;
+let viewer = null, marker = null;
 const waiting = new Map();   // message id -> {resolve, reject}, for generate and load
 
 window.mogoPage = {
@@ -59,9 +62,10 @@ window.mogoPage = {
     const m = page.motion;
     if (!m) return null;
     return { kind: m.kind, texts: m.texts, seed: String(m.seed), variant: m.variant, fps: m.fps,
-      tokens: m.tokens ? Array.from(m.tokens) : null, levels: m.levels, switches: m.switches,
-      joints: m.frames.flatMap((f) => Array.from(f)), numFrames: m.frames.length };
+      tokens: m.tokens ? Array.from(m.tokens) : null, levels: m.levels, switches: m.switches, picked: m.picked,
+      walks: m.walks, arrivals: m.arrivals, joints: m.frames.flatMap((f) => Array.from(f)), numFrames: m.frames.length };
   },
+  camera: () => cameraState(viewer),
 };
 
 // ---- loading --------------------------------------------------------------------------------------------
@@ -83,6 +87,7 @@ async function loadBundle() {
   $('bundle-info').textContent = `${bundleUrl.replace(root.href, '')}: ${m.skeleton.name} skeleton, ${m.model.numLevels}`
     + ` levels x ${m.model.codebookSize} codes, ${m.model.fps} fps, ${perToken} s per token, `
     + `${page.endless ? 'endless streams (prompt changes mid-stream)' : `clips up to ${m.model.maxSeconds} s`}; `
+    + `${m.control && page.endless ? 'control (click the ground while streaming: the character walks there); ' : ''}`
     + `sampling ${describeSampling(m.samplingDefaults)}`;
   $('stream').textContent = page.endless ? 'Stream (endless)' : 'Stream';
 
@@ -93,6 +98,8 @@ async function loadBundle() {
   $('variant').replaceChildren(...offered.map((v) => new Option(v, v)));
 
   viewer = new SkeletonViewer($('view'), m.skeleton);
+  marker = new GoalMarker(viewer.scene);
+  if (m.control && page.endless) onGroundClick(viewer, walkTo);
   requestAnimationFrame(draw);
   const variant = offered.includes(wanted) ? wanted : offered.includes('int8') ? 'int8' : offered[0];
   await loadVariant(variant);
@@ -193,7 +200,7 @@ function startStream() {
   const id = ++page.runId;
   const fps = page.manifest.model.fps;
   show({ kind: 'stream', texts: [text], seed, variant: page.variant, fps, tokens: null, levels: page.manifest.model.numLevels,
-    switches: [], frames: [] }, true);
+    switches: [], frames: [], picked: [], walks: [], arrivals: [] }, true);
   page.stream = { id, t0: performance.now(), firstMs: null, busyMs: 0, tokens: 0 };
   page.stats.stream = null;
   setBusy('streaming');
@@ -206,6 +213,17 @@ function setPrompt() {
   if (!page.stream || !text.trim()) return;
   worker.postMessage({ type: 'setPrompt', id: page.stream.id, text });
   status(`switching to "${text}" at the next token`);
+}
+
+/** Send the streaming character to `goal` [x, z] (from its next token), and mark the spot. */
+function walkTo(goal) {
+  if (!page.stream) {
+    status('press Stream first: a click on the ground sends the streaming character there');
+    return;
+  }
+  worker.postMessage({ type: 'walkTo', id: page.stream.id, goal });
+  marker.show(goal);
+  status(`walking to (${goal[0].toFixed(2)}, ${goal[1].toFixed(2)}) from the next token`);
 }
 
 function stopStream() {
@@ -225,6 +243,7 @@ function streamOver() {
 function show(motion, live) {
   page.motion = motion;
   page.shows += 1;
+  marker.hide();
   viewer.player.start({ fps: motion.fps, live });
   for (const f of motion.frames) viewer.player.push(f);
   viewer.player.playing = true;
@@ -263,6 +282,7 @@ worker.onmessage = ({ data: msg }) => {
         page.motion.frames.push(f);
         viewer.player.push(f);
       }
+      page.motion.picked.push(...msg.picked);
       if (msg.start === 0) setBusy(page.busy);   // the downloads have something to write now
       s.busyMs = msg.busyMs;
       s.tokens = msg.tokens;
@@ -277,6 +297,18 @@ worker.onmessage = ({ data: msg }) => {
         page.motion.texts.push(msg.text);
         status(`now following "${msg.text}" (from token ${msg.token}, frame ${msg.frame})`);
       }
+      break;
+    case 'walking':
+      if (page.stream?.id === msg.id) page.motion.walks.push({ goal: msg.goal, token: msg.token, frame: msg.frame });
+      break;
+    case 'arrived':
+      if (page.stream?.id === msg.id) {
+        page.motion.arrivals.push(msg.frame);
+        status(`arrived (frame ${msg.frame}): the character stands there doing the prompt`);
+      }
+      break;
+    case 'refused':
+      fail(new Error(`the stream refused the request: ${msg.message}`));
       break;
     case 'end':
       if (page.stream?.id !== msg.id) break;   // a stream the page stopped itself

@@ -7,25 +7,32 @@
 //                   {type: 'stream', id, text, seed, ahead}            frames as they are decoded
 //                   {type: 'played', id, frame}                        the page shows `frame`: produce up to frame + ahead
 //                   {type: 'setPrompt', id, text}                      the stream follows `text` from its next token
+//                   {type: 'walkTo', id, goal: [x, z]}                 the stream's character goes there (control)
 //                   {type: 'stop', id}
 //   worker -> page  {type: 'status', text} {type: 'loaded', id, ...} {type: 'probed', id, variant}
 //                   {type: 'progress', id, step, limit}
-//                   {type: 'clip', id, ...} {type: 'frames', id, start, joints, ...} {type: 'switched', id, ...}
+//                   {type: 'clip', id, ...} {type: 'frames', id, start, joints, picked, ...} {type: 'switched', id, ...}
+//                   {type: 'walking', id, goal, token, frame} {type: 'arrived', id, frame} {type: 'refused', id, message}
 //                   {type: 'end', id, frames, busyMs, reason} {type: 'error', id, message, frames?}
+//
+// `picked` in frames: the token ids (flat, L per token) the stream picked since the last frames message, read from
+// its context as it picks them (the page's test holds them to Python's).
 //
 // A stream answers exactly once when it is over: `end` with reason 'ended' (the model ended the motion) or
 // 'stopped' (a stop, or a command that needs the sessions), or `error` with the exception's message; never `end`
 // for an exception, so the page cannot show a failure as the model's choice.
 //
-// A prompt switch is applied between two frames of the stream, never while a step is in flight: the stream's
-// setPrompt re-arms the context when its text embedding arrives, and a step already running would overwrite that.
+// A prompt switch or a walkTo is applied between two frames of the stream, never while a step is in flight: the
+// stream's setPrompt re-arms the context when its text embedding arrives, and a step already running would overwrite
+// that; a walkTo made there lands at the next token, as the same request made between the same frames in Python.
 
 import * as ort from './node_modules/onnxruntime-web/dist/ort.wasm.min.mjs';
 import { MotionGenerator, urlLoader } from '../js/src/index.js';
 
 let gen = null;
 // Streams by id from their command's arrival until they are over, so a stop (or a prompt) sent while the command
-// waits its turn, or while its prompt is encoded, is not lost: {id, stream, played, ahead, queued: [texts], stopped, wake}
+// waits its turn, or while its prompt is encoded, is not lost:
+// {id, stream, played, ahead, queued: [texts], goals: [[x, z]], stopped, wake}
 const streams = new Map();
 
 // Commands that use the sessions run one after another; the small ones act at once, between two frames of the
@@ -44,7 +51,8 @@ self.onmessage = (event) => {
   } else if (Object.hasOwn(QUEUED, msg.type)) {
     if (TAKES_OVER.has(msg.type)) for (const me of streams.values()) stop(me);
     if (msg.type === 'stream') {
-      streams.set(msg.id, { id: msg.id, stream: null, played: -1, ahead: msg.ahead, queued: [], stopped: false, wake: null });
+      streams.set(msg.id, { id: msg.id, stream: null, played: -1, ahead: msg.ahead, queued: [], goals: [], stopped: false,
+        wake: null });
     }
     chain = chain.then(() => QUEUED[msg.type](msg)).catch(fail);
   } else {
@@ -118,6 +126,14 @@ const NOW = {
     }
   },
 
+  walkTo({ id, goal }) {
+    const me = streams.get(id);
+    if (me) {
+      me.goals.push(goal);
+      wake(me);
+    }
+  },
+
   stop({ id }) {
     const me = streams.get(id);
     if (me) stop(me);
@@ -128,14 +144,15 @@ const NOW = {
 async function produce(me) {
   const J3 = gen.skeleton.parents.length * 3, fps = gen.fps;
   const it = me.stream[Symbol.asyncIterator]();
-  let produced = 0, busyMs = 0;
+  let produced = 0, busyMs = 0, sent = 0, arrived = false;   // sent: tokens whose ids went to the page
   const batch = [];
   const flush = () => {
     if (!batch.length) return;
-    const joints = new Float32Array(batch.length * J3);
+    const joints = new Float32Array(batch.length * J3), picked = pickedSince(me.stream, sent);
     batch.forEach((f, i) => joints.set(f, i * J3));
+    sent = me.stream.tokens;
     self.postMessage({ type: 'frames', id: me.id, start: produced - batch.length, joints, count: batch.length,
-      tokens: me.stream.tokens, busyMs, fps }, [joints.buffer]);
+      tokens: me.stream.tokens, picked, busyMs, fps }, [joints.buffer, picked.buffer]);
     batch.length = 0;
   };
   let reason = 'stopped', failure = null;   // failure: {error}, whatever was thrown
@@ -146,6 +163,21 @@ async function produce(me) {
         await me.stream.setPrompt(text);
         const sw = me.stream.switches[me.stream.switches.length - 1];
         self.postMessage({ type: 'switched', id: me.id, text, token: sw.token, frame: produced });
+      }
+      while (me.goals.length) {
+        const goal = me.goals.shift();
+        try {
+          me.stream.walkTo(goal);
+        } catch (e) {   // a request the stream refuses changes nothing: the stream goes on
+          self.postMessage({ type: 'refused', id: me.id, message: describe(e) });
+          continue;
+        }
+        arrived = false;
+        self.postMessage({ type: 'walking', id: me.id, goal, token: me.stream.tokens, frame: produced });
+      }
+      if (me.stream.arrived && !arrived) {
+        arrived = true;
+        self.postMessage({ type: 'arrived', id: me.id, frame: produced });
       }
       if (produced - me.played > me.ahead) {
         flush();
@@ -179,6 +211,19 @@ async function produce(me) {
   }
   self.postMessage(failure ? { type: 'error', id: me.id, message: describe(failure.error), frames: produced }
     : { type: 'end', id: me.id, frames: produced, busyMs, reason });
+}
+
+/** The token ids (flat, L per token) `stream` picked from token `from` on, read from its context's recent tokens. */
+function pickedSince(stream, from) {
+  const context = stream.loop?.streams[0];
+  if (!context) return new Int32Array(0);
+  const L = context.policy.dims.numLevels, out = new Int32Array((context.count - from) * L);
+  if (context.count - from > context.span) throw new Error(`${context.count - from} tokens picked between two frames messages`);
+  for (let t = from; t < context.count; t++) {
+    const slot = t % context.span;
+    out.set(context.history.subarray(slot * L, (slot + 1) * L), (t - from) * L);
+  }
+  return out;
 }
 
 function stop(me) {

@@ -21,3 +21,10 @@ export function shown(value, limit = 60) {
   }
   return oneLine(text, limit);
 }
+
+/** `value`, a number in [lo, hi] (checks.py as_real): a TypeError for a non-number, a RangeError outside. */
+export function asReal(name, value, must, lo = -Infinity, hi = Infinity) {
+  if (typeof value !== 'number') throw new TypeError(`${name} must be a number ${must}, got ${shown(value)}`);
+  if (!(value >= lo && value <= hi)) throw new RangeError(`${name} must be ${must}, got ${shown(value)}`);
+  return value;
+}

@@ -173,20 +173,29 @@ export class GenerationTask {
   /**
    * One prompt's frames as its tokens are sampled, a chunk at a time: yields {index, features (n, D),
    * joints (n, J, 3)}, n >= 1. With `loop` (an EndlessLoop of this prompt) the stream follows that loop's prompt
-   * switches; `beforeStep` is awaited before each token (a prompt switch being encoded lands there).
+   * switches; `beforeStep` is awaited before each token (a prompt switch being encoded lands there); with
+   * `steering` (of that loop's stream) it goes where the steering's target leads, and makes its frames every token
+   * while it has a target.
    */
-  stream(textEmb, seed, chunk = 4, loop = null, beforeStep = null) {
+  stream(textEmb, seed, chunk = 4, loop = null, beforeStep = null, steering = null) {
     const maker = new FrameMaker(this.backend.dims, this.skeleton, chunk);   // checks chunk now, not at the first frame
-    return this.#stream(this.steps(textEmb, [seed], loop, beforeStep), maker);
+    return this.#stream(this.steps(textEmb, [seed], loop, beforeStep), maker, steering);
   }
 
-  async* #stream(steps, maker) {
+  async* #stream(steps, maker, steering) {
     for await (const { picked, alive } of steps) {
       if (!alive[0]) break;
+      if (steering?.target) maker.chunk = 1;   // the next token's control reads the pose the frames so far fix
       const n = maker.push(picked);
-      if (n) yield maker.framesFrom(await this.backend.decode(maker.window(n), 1));
+      if (n) yield await this.#frames(maker, n, steering);
     }
     const n = maker.due(true);
-    if (n) yield maker.framesFrom(await this.backend.decode(maker.window(n), 1));
+    if (n) yield await this.#frames(maker, n, steering);
+  }
+
+  async #frames(maker, n, steering) {
+    const frames = maker.framesFrom(await this.backend.decode(maker.window(n), 1));
+    if (steering) steering.update(maker.frames, maker.joints);   // maker.frames: the next frame's number
+    return frames;
   }
 }

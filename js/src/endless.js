@@ -15,12 +15,17 @@ import { StepPolicy } from './policy.js';
  * tokens, and what its next step feeds (`plan`), given the pick it then `accept`s.
  */
 export class StreamContext {
-  constructor(policy, emb, seed, spec) {
+  constructor(policy, emb, seed, spec, controlDim = 0) {
     this.policy = policy;
     this.window = spec.window;
     this.span = spec.window + spec.refresh;
     this.rng = new PCG64(seed);
     this.history = new Int32Array(this.span * policy.dims.numLevels);   // token t at slot t % span
+    // with control (a model that has it): the control each token was picked with, as the history holds tokens, so
+    // a rebuilt context reads what it read the first time; and the control of the next token (`steer`)
+    this.controlDim = controlDim;
+    this.controls = controlDim ? new Float32Array(this.span * controlDim) : null;
+    this.control = controlDim ? new Float32Array(controlDim) : null;
     this.last = null;       // the last token picked
     this.count = 0;         // tokens picked
     this.cached = 0;        // motion tokens in the context after its prefix
@@ -38,26 +43,33 @@ export class StreamContext {
   /** END may be picked once the motion has a token: never as a motion's first, so never twice in a row. */
   get mayEnd() { return this.motion >= 1; }
 
+  /** The control vector (controlDim) the next token is picked with (control/): a new array, never changed after. */
+  steer(control) { this.control = Float32Array.from(control); }
+
   /**
-   * -> {tokens (S, L) the next step feeds, fresh: whether they start a new context}. A new context is BOS and
-   * the last n picked tokens: n = 0 after a new prompt or END, `window` once the context holds window + refresh;
-   * otherwise the step feeds the last pick.
+   * -> {tokens (S, L) the next step feeds, controls (S, controlDim) or null without control, fresh: whether they
+   * start a new context}. A new context is BOS and the last n picked tokens: n = 0 after a new prompt or END,
+   * `window` once the context holds window + refresh; otherwise the step feeds the last pick. Position i of the
+   * feed picks token count - n + i, so it reads that token's control (the last: `control`).
    */
   plan() {
     if (!(this.restart || this.cached === this.span)) {
       this.cached += 1;
-      return { tokens: this.last, fresh: false };
+      return { tokens: this.last, controls: this.control, fresh: false };
     }
-    const L = this.policy.dims.numLevels, n = this.restart ? 0 : this.window;
+    const L = this.policy.dims.numLevels, C = this.controlDim, n = this.restart ? 0 : this.window;
     const tokens = new Int32Array((n + 1) * L).fill(this.policy.dims.bosId);
+    const controls = this.control && new Float32Array((n + 1) * C);
     for (let i = 0; i < n; i++) {   // the last n, oldest first
       const slot = (this.count - n + i) % this.span;
       tokens.set(this.history.subarray(slot * L, (slot + 1) * L), (i + 1) * L);
+      controls?.set(this.controls.subarray(slot * C, (slot + 1) * C), i * C);
     }
+    controls?.set(this.control, n * C);
     this.cached = n;
     this.restart = false;
     if (n === 0) this.motion = 0;
-    return { tokens, fresh: true };
+    return { tokens, controls, fresh: true };
   }
 
   /** The step's pick (L) -> whether it is the stream's next token (END is not: the motion starts again). */
@@ -68,6 +80,7 @@ export class StreamContext {
       return false;
     }
     this.history.set(picked, (this.count % this.span) * picked.length);
+    this.controls?.set(this.control, (this.count % this.span) * this.controlDim);
     this.last = picked;
     this.count += 1;
     this.motion += 1;
@@ -84,7 +97,9 @@ export class EndlessLoop {
   constructor(backend, textEmb, sampling, seeds, spec) {
     this.backend = backend;
     this.policy = new StepPolicy(sampling, backend.dims);
-    this.streams = seeds.map((seed, b) => new StreamContext(this.policy, this.#row(textEmb, b, seeds.length), seed, spec));
+    const controlDim = backend.control ? backend.control.dim : 0;
+    this.streams = seeds.map((seed, b) => new StreamContext(this.policy, this.#row(textEmb, b, seeds.length), seed, spec,
+      controlDim));
     this.past = seeds.map(() => null);
     this.running = null;    // while a step runs: the index of the token after it
     this.deferred = null;   // a prompt switch asked for while a step runs, made when it ends
@@ -132,9 +147,10 @@ export class EndlessLoop {
   async #step(b) {
     const stream = this.streams[b], rows = this.policy.rows;
     for (let attempt = 0; attempt < 2; attempt++) {   // a pick of END is picked again from the restarted context
-      const { tokens, fresh } = stream.plan();
+      const { tokens, controls, fresh } = stream.plan();
       if (fresh) this.past[b] = this.backend.emptyPast(rows);
-      const out = await this.backend.step(stream.rowsEmb, this.policy.feed(tokens, 1), rows, this.past[b]);
+      const out = await this.backend.step(stream.rowsEmb, this.policy.feed(tokens, 1), rows, this.past[b],
+        controls && this.policy.feed(controls, 1));
       this.past[b] = out.past;
       const picked = this.policy.pick(out.logits, [stream.mayEnd], [stream.rng]);
       if (stream.accept(picked)) return picked;

@@ -53,6 +53,7 @@ export class OrtBackend {
   /** `rowByRow`: the graphs that run one row per call (those quantized per tensor). */
   constructor(ort, manifest, variant, tokenizer, sessions, rowByRow) {
     Object.assign(this, { ort, manifest, dims: manifest.model, variant, tokenizer, sessions, rowByRow });
+    this.control = manifest.control;   // the step graph's control input {horizon, dim}; null: none
     this.cacheHeads = this.dims.numLevels * this.dims.nHeads;   // past: [rows, L * n_heads, past, head_dim]
     // the portable variant: one time step per call into a cache of fixed capacity, written at `position`
     this.capacity = fixedCache(manifest, variant) ? manifest.portable.capacity : null;
@@ -119,29 +120,48 @@ export class OrtBackend {
   }
 
   /**
-   * One step call: textEmb (rows, text_dim), tokens (rows, steps, L), past from emptyPast or the previous step
-   * -> {logits (rows, steps, L, K + 1), past}.
+   * One step call: textEmb (rows, text_dim), tokens (rows, steps, L), past from emptyPast or the previous step,
+   * control (rows, steps, control.dim) or null (see `controls`) -> {logits (rows, steps, L, K + 1), past}.
    */
-  async step(textEmb, tokens, rows, past) {
-    if (this.capacity !== null) return this.#fixedStep(textEmb, tokens, rows, past);
-    if (!this.rowByRow.has('step')) return this.#step(textEmb, tokens, rows, past);
+  async step(textEmb, tokens, rows, past, control = null) {
+    control = this.controls(tokens, rows, control);
+    if (this.capacity !== null) return this.#fixedStep(textEmb, tokens, rows, past, control);
+    if (!this.rowByRow.has('step')) return this.#step(textEmb, tokens, rows, past, null, control);
     const outs = [];
-    for (let r = 0; r < rows; r++) outs.push(await this.#step(rowOf(textEmb, rows, r), rowOf(tokens, rows, r), 1, past[r]));
+    for (let r = 0; r < rows; r++) {
+      outs.push(await this.#step(rowOf(textEmb, rows, r), rowOf(tokens, rows, r), 1, past[r], null,
+        control && rowOf(control, rows, r)));
+    }
     return { logits: concat(outs.map((o) => o.logits)), past: outs.map((o) => o.past) };
   }
 
-  async #step(textEmb, tokens, rows, past, position = null) {
+  /**
+   * The control input of a step on `tokens` (rows, steps, L): `control` (rows, steps, control.dim) checked, zeros
+   * ("no control") for null; null for a model without control, which takes none (engine.py `controls`).
+   */
+  controls(tokens, rows, control) {
+    if (this.control === null) {
+      if (control !== null) throw new Error("this bundle's model was trained without control (its manifest has no 'control' section)");
+      return null;
+    }
+    const want = (tokens.length / this.dims.numLevels) * this.control.dim;
+    if (control === null) return new Float32Array(want);
+    if (!(control instanceof Float32Array) || control.length !== want) {
+      throw new RangeError(`control must be float32 (${rows}, ${tokens.length / (rows * this.dims.numLevels)}, `
+        + `${this.control.dim}) for the tokens fed, got ${control.length} values`);
+    }
+    return control;
+  }
+
+  async #step(textEmb, tokens, rows, past, position = null, control = null) {
     const { numLevels: L, codebookSize: K, headDim } = this.dims, steps = tokens.length / (rows * L);
     const feed = {
       text_embedding: new this.ort.Tensor('float32', textEmb, [rows, this.dims.textDim]),
       tokens: new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [rows, steps, L]),
     };
     if (position !== null) feed.position = new this.ort.Tensor('int64', new BigInt64Array(rows).fill(BigInt(position)), [rows]);
-    // a model with control reads where the character should go; all zeros: no control (control/vector.py)
-    if (this.manifest.control) {
-      feed.control = new this.ort.Tensor('float32', new Float32Array(rows * steps * this.manifest.control.dim),
-        [rows, steps, this.manifest.control.dim]);
-    }
+    // a model with control reads where the character should go; all zeros: no control (control/vector.js)
+    if (control !== null) feed.control = new this.ort.Tensor('float32', control, [rows, steps, this.control.dim]);
     this.manifest.pastNames.forEach((name, i) => { feed[name] = past[i]; });
     const out = await this.#run('step', feed), presents = this.manifest.presentNames.map((name) => out[name]);
     // What the graph returns is held to the manifest every step: a cache that grew by more than the steps fed (or
@@ -159,7 +179,7 @@ export class OrtBackend {
   }
 
   /** The portable step: S tokens are S calls, each writing its slot; logits come back as (rows, S, L, K + 1). */
-  async #fixedStep(textEmb, tokens, rows, past) {
+  async #fixedStep(textEmb, tokens, rows, past, control) {
     const L = this.dims.numLevels, S = tokens.length / (rows * L), V = this.dims.codebookSize + 1;
     if (past.length + S > this.capacity) {
       throw new RangeError(`the portable step's cache holds ${this.capacity} steps; ${past.length} are cached and ${S} `
@@ -167,10 +187,14 @@ export class OrtBackend {
     }
     const logits = new Float32Array(rows * S * L * V);
     let cache = past.tensors;
+    const C = this.control?.dim ?? 0;
     for (let s = 0; s < S; s++) {
-      const ids = new Int32Array(rows * L);
-      for (let r = 0; r < rows; r++) ids.set(tokens.subarray((r * S + s) * L, (r * S + s + 1) * L), r * L);
-      const out = await this.#step(textEmb, ids, rows, cache, past.length + s);
+      const ids = new Int32Array(rows * L), at = control && new Float32Array(rows * C);
+      for (let r = 0; r < rows; r++) {
+        ids.set(tokens.subarray((r * S + s) * L, (r * S + s + 1) * L), r * L);
+        at?.set(control.subarray((r * S + s) * C, (r * S + s + 1) * C), r * C);
+      }
+      const out = await this.#step(textEmb, ids, rows, cache, past.length + s, at);
       for (let r = 0; r < rows; r++) logits.set(out.logits.subarray(r * L * V, (r + 1) * L * V), (r * S + s) * L * V);
       cache = out.past;
     }

@@ -12,6 +12,7 @@ import { Bundle } from './bundle/folder.js';
 import { fileLoader } from './bundle/io.js';
 import { SamplingConfig } from './bundle/sampling.js';
 import { shown } from './checks.js';
+import { Steerable, Steering } from './control/steering.js';
 import { GenerationTask } from './decoding.js';
 import { OrtBackend } from './engine.js';
 import { expandSeeds } from './policy.js';
@@ -175,17 +176,23 @@ export class MotionGenerator {
 
 /**
  * What `MotionGenerator.stream` returns: an async iterator of frames, the prompt it follows now, and, on an
- * endless bundle, `setPrompt` to change what the character does from the next token sampled.
+ * endless bundle, `setPrompt` to change what the character does from the next token sampled; on one whose model
+ * has control, where it goes too (`walkTo`, `followPath`, `steer`, `setRoot`, `release`: control/). A request
+ * made between two frames lands at the next token sampled.
  */
-export class FrameStream {
+export class FrameStream extends Steerable {
   constructor(gen, task, emb, seed, chunk, text) {
+    super();
     this.gen = gen;
     this.text = text;
     this.switches = [];                 // {token, text} of each prompt switch, where it landed
     this.closed = false;                // close() was called, or the motion ended: no more prompts
+    this.shown = 0;                     // the number of the next frame handed out
     this.pending = Promise.resolve();   // prompt switches being encoded, one at a time; each step waits for them
     this.loop = task.streaming !== null ? task.loop(emb, [seed]) : null;
-    this.frames = this.#frames(task.stream(emb, seed, chunk, this.loop, () => this.pending));
+    const control = task.backend.control;
+    this.steering = control && this.loop ? new Steering(control, task.backend.dims, this.loop.streams[0]) : null;
+    this.frames = this.#frames(task.stream(emb, seed, chunk, this.loop, () => this.pending, this.steering));
   }
 
   [Symbol.asyncIterator]() { return this; }
@@ -217,6 +224,17 @@ export class FrameStream {
     return this.pending;
   }
 
+  nextShown() { return this.shown; }
+
+  checkSteerable() {
+    if (this.closed) throw new Error('this stream is closed (close(), or its motion ended): it goes nowhere any more');
+  }
+
+  whyNotSteerable() {
+    return this.loop ? super.whyNotSteerable() : "this bundle was not trained for endless streams (its manifest has no "
+      + "'streaming' section), so its streams cannot be steered";
+  }
+
   /** End the stream (no more tokens are sampled). */
   async close() {
     this.closed = true;
@@ -229,8 +247,11 @@ export class FrameStream {
     try {
       for await (const { index, features, joints } of chunks) {
         for (let i = 0; i < features.length / D; i++) {
+          this.shown = index + i + 1;
+          // on the game's capsule as placed up to now, when it owns the root (placed as the frame is handed out)
+          const frame = joints.slice(i * J3, (i + 1) * J3);
           yield { index: index + i, time: (index + i) / this.gen.fps, features: features.slice(i * D, (i + 1) * D),
-            joints: joints.slice(i * J3, (i + 1) * J3) };
+            joints: this.steering ? this.steering.place(index + i, frame) : frame };
         }
       }
     } finally {

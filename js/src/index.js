@@ -21,4 +21,7 @@ export { FrameMaker, GenerationTask, collectTokens, decodeTokens, generateTokens
 export { SKELETONS } from './kinematics/skeleton.js';
 export { recoverFromRic } from './kinematics/features.js';
 export { FootLock, FrameJoints, RootIntegrator } from './kinematics/frames.js';
+export { Steerable, Steering } from './control/steering.js';
+export { FollowPath, GameRoot, Steer, WalkTo } from './control/targets.js';
+export { controlDim, decode as decodeControl, encode as encodeControl } from './control/vector.js';
 export { jointsToBvhText } from './outputs/bvh.js';

@@ -7,6 +7,7 @@ import assert from 'node:assert/strict';
 import { MotionGenerator } from '../src/generator.js';
 import { SamplingConfig } from '../src/bundle/sampling.js';
 import { EndlessLoop } from '../src/endless.js';
+import { compareControlCase, runControlCase, samplingOf } from './control_case.mjs';
 import { bundleReferences, maxAbsDiff, report } from './reference.mjs';
 
 const EMBEDDING_TOLERANCE = 1e-5;
@@ -157,6 +158,10 @@ for (const ref of bundleReferences()) {
         if (!gen.endless) assert.throws(() => s.setPrompt('a person waves'), /not trained for endless streams/);
       });
 
+      if (want.control) {
+        await t.test('controlled streams: requests at the same frames give the same tokens', () => checkControl(gen, want.control, ref, variant));
+      }
+
       report(`${ref.name}/${variant}: ${stats.tokens} token ids identical; max |diff| embeddings ${stats.embedding.toExponential(2)}, `
         + `first logits ${stats.logits.toExponential(2)}, features ${stats.features.toExponential(2)}, joints ${stats.joints.toExponential(2)} m`
         + (want.loop ? `; END restarts in the two-stream loop: ${stats.restarts}` : ''));
@@ -164,4 +169,19 @@ for (const ref of bundleReferences()) {
       await gen.release();
     });
   }
+}
+
+/** tests/golden/make_golden.py's controlled streams on a bundle with control, as Python ran them (make_reference.py). */
+async function checkControl(gen, cases, ref, variant) {
+  let same = 0, vectors = 0, exact = 0, worst = 0, tokens = 0;
+  const wrong = [];
+  for (const [i, c] of cases.entries()) {
+    const r = compareControlCase(await runControlCase(gen, c, new SamplingConfig(samplingOf(c.sampling))), c);
+    [vectors, exact, worst, tokens] = [vectors + r.vectors, exact + r.exact, Math.max(worst, r.worst), tokens + c.tokens.length];
+    if (r.same) same += 1;
+    else wrong.push(i);
+  }
+  report(`${ref.name}/${variant}: ${same} of ${cases.length} controlled streams (${tokens} tokens) identical to Python's; `
+    + `control vectors ${exact} of ${vectors} bit-identical, max |diff| ${worst.toExponential(1)}`);
+  assert.deepEqual(wrong, [], `controlled streams ${wrong.join(', ')} differ`);
 }

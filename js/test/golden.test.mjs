@@ -1,6 +1,8 @@
 // The golden tokens (tests/golden/toy.json, written by the Python runtime) from the JavaScript runtime: the same
-// toy bundle, prompts, seeds and settings must give exactly the stored tokens. run.sh builds the toy bundle and
-// passes its folder as MOGO_JS_TOY.
+// toy bundle, prompts, seeds and settings must give exactly the stored tokens. And the controlled streams of
+// tests/golden/toy_control.json: the same requests at the same frames give the same tokens, landing at the same
+// tokens, the same arrivals, and control vectors within float32 rounding of Python's. run.sh builds the toy
+// bundles and passes their folders as MOGO_JS_TOY and MOGO_JS_TOY_CONTROL.
 
 import test from 'node:test';
 import assert from 'node:assert/strict';
@@ -9,30 +11,34 @@ import { join } from 'node:path';
 import { fileURLToPath } from 'node:url';
 import { MotionGenerator } from '../src/generator.js';
 import { SamplingConfig } from '../src/bundle/sampling.js';
+import { compareControlCase, runControlCase, samplingOf } from './control_case.mjs';
 import { report } from './reference.mjs';
 
 const ROOT = fileURLToPath(new URL('../..', import.meta.url));
 const GOLDEN = JSON.parse(readFileSync(join(ROOT, 'tests', 'golden', 'toy.json'), 'utf8'));
+const GOLDEN_CONTROL = JSON.parse(readFileSync(join(ROOT, 'tests', 'golden', 'toy_control.json'), 'utf8'));
 
-function toyFolder() {
-  const dir = process.env.MOGO_JS_TOY;
-  if (!dir) throw new Error('MOGO_JS_TOY is not set: run js/test/run.sh (it builds the toy bundle)');
+function toyFolder(name = 'MOGO_JS_TOY') {
+  const dir = process.env[name];
+  if (!dir) throw new Error(`${name} is not set: run js/test/run.sh (it builds the toy bundles)`);
   return dir;
 }
 
-const sampling = (cfg) => new SamplingConfig({
-  temperature: cfg.temperature, topK: cfg.top_k ?? null, topP: cfg.top_p ?? null, guidance: cfg.guidance ?? 1,
-});
+/** The sha256 of the files the golden cases of `variants` run (as make_golden.bundle_hashes). */
+function bundleHashes(dir, variants) {
+  const manifest = JSON.parse(readFileSync(join(dir, 'manifest.json'), 'utf8'));
+  const used = new Set([manifest.text_encoder.tokenizer,
+    ...variants.flatMap((v) => Object.values(manifest.variants[v]).map((g) => g.file))]);
+  return Object.fromEntries(Object.entries(manifest.files)
+    .filter(([name]) => used.has(name)).map(([name, f]) => [name, f.sha256]));
+}
+
+const sampling = (cfg) => new SamplingConfig(samplingOf(cfg));
 
 test('the JavaScript runtime gives the golden tokens', async () => {
   const dir = toyFolder();
-  // the files the golden cases run (as make_golden.bundle_hashes): fp32 and int8 graphs and the tokenizer
-  const manifest = JSON.parse(readFileSync(join(dir, 'manifest.json'), 'utf8'));
-  const used = new Set([manifest.text_encoder.tokenizer,
-    ...['fp32', 'int8'].flatMap((v) => Object.values(manifest.variants[v]).map((g) => g.file))]);
-  const hashes = Object.fromEntries(Object.entries(manifest.files)
-    .filter(([name]) => used.has(name)).map(([name, f]) => [name, f.sha256]));
-  assert.deepEqual(hashes, GOLDEN.files,
+  // the files the golden cases run: fp32 and int8 graphs and the tokenizer
+  assert.deepEqual(bundleHashes(dir, ['fp32', 'int8']), GOLDEN.files,
     'the toy bundle changed since tests/golden/toy.json was written: regenerate it (tests/golden/make_golden.py)');
   const generators = {};
   let same = 0, steps = 0;
@@ -50,4 +56,28 @@ test('the JavaScript runtime gives the golden tokens', async () => {
   }
   report(`golden: ${same} of ${GOLDEN.cases.length} cases (${steps} time steps) identical to tests/golden/toy.json`);
   assert.deepEqual(wrong, [], `cases ${wrong.slice(0, 5).join(', ')} differ`);
+});
+
+test('the JavaScript runtime gives the golden controlled streams', async () => {
+  const dir = toyFolder('MOGO_JS_TOY_CONTROL');
+  const variants = [...new Set(GOLDEN_CONTROL.cases.map((c) => c.variant))];
+  assert.deepEqual(bundleHashes(dir, variants), GOLDEN_CONTROL.files,
+    'the control toy bundle changed since tests/golden/toy_control.json was written: regenerate it (tests/golden/make_golden.py)');
+  const generators = {};
+  const wrong = [];
+  let same = 0, tokens = 0, vectors = 0, exact = 0, worst = 0;
+  for (const [i, c] of GOLDEN_CONTROL.cases.entries()) {
+    generators[c.variant] ??= await MotionGenerator.load(dir, { variant: c.variant, threads: 1 });
+    const r = compareControlCase(await runControlCase(generators[c.variant], c, sampling(c.sampling)), c);
+    tokens += c.tokens.length;
+    vectors += r.vectors;
+    exact += r.exact;
+    worst = Math.max(worst, r.worst);
+    if (r.same) same += 1;
+    else wrong.push(i);
+  }
+  report(`golden control: ${same} of ${GOLDEN_CONTROL.cases.length} controlled streams (${tokens} tokens; requests landed `
+    + `at the same tokens) identical to tests/golden/toy_control.json; control vectors: ${exact} of ${vectors} `
+    + `bit-identical, max |difference| ${worst.toExponential(1)}`);
+  assert.deepEqual(wrong, [], `controlled streams ${wrong.slice(0, 5).join(', ')} differ`);
 });

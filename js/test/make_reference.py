@@ -4,13 +4,15 @@
 
 Writes into --out:
   units.json              numpy PCG64 draws, numpy sums, sampler picks on random logits, tokenizer ids, the
-                          tokenizer parts the runtimes read
+                          tokenizer parts the runtimes read, control vectors and the wanted poses of every
+                          request (mogo_runtime/control) from random root poses, a stream's next root pose
   *.tokenizer.json        the tokenizer files units.json refers to (MiniLM's, configured as the exporter does)
   bundle-<name>.json      per bundle: its name, path and variants
   variant-<name>-<v>.json per bundle and variant: tokenizer ids and text embeddings of the prompts, the first
                           step's logits, greedy and sampled tokens (4 prompts x 3 seeds x 5 settings, guidance
                           1 and 2), fixed lengths, batches, features and joints of a few motions; on endless
-                          bundles a timeline, a stream whose prompt changes, and a two-stream EndlessLoop
+                          bundles a timeline, a stream whose prompt changes, and a two-stream EndlessLoop; on
+                          endless bundles with control, tests/golden/make_golden.py's controlled streams
 
 Run with the repository's venv (numpy, onnxruntime, tokenizers, mogo_runtime); torch is not needed.
 """
@@ -96,6 +98,57 @@ def foot_lock_cases(rng) -> list[dict]:
         chunked = np.concatenate([lock.push(joints[i:i + 5], feats[i:i + 5]) for i in range(0, frames, 5)])
         cases.append({"joints": _floats(joints), "features": _floats(feats), "locked": _floats(chunked)})
     return cases
+
+
+def control_unit_cases(rng) -> dict:
+    """control/vector.py and targets.py on random root poses (float64 out, as the JavaScript mirror computes them),
+    and RootIntegrator.next_pose after random chunks of features."""
+    from mogo_runtime.control import FollowPath, GameRoot, Steer, WalkTo
+    from mogo_runtime.control.vector import encode
+    from mogo_runtime.kinematics.frames import RootIntegrator
+
+    times = (np.arange(1, 6) * 4 / 20.0).tolist()
+    poses = lambda n, spread=3.0: np.concatenate([rng.uniform(-spread, spread, (n, 2)),   # noqa: E731
+                                                  rng.uniform(-4, 4, (n, 1))], axis=1)
+    encoded = []
+    for now in poses(40):
+        future = poses(5)
+        encoded.append({"now": now.tolist(), "future": future.tolist(), "vector": _floats(encode(now, future))})
+    requests = []
+
+    def walk(make, args, nows, *extra):      # one request asked at every pose of a walk, as a stream asks it
+        target = make(*args)
+        out = [target.future(now, np.array(times), *extra).tolist() for now in nows]
+        requests.append({"kind": make.__name__, "args": args, "nows": nows.tolist(), "futures": out,
+                         "arrived": target.arrived, **({"progress": target.progress} if hasattr(target, "progress") else {})})
+
+    for _ in range(6):
+        goal = rng.uniform(-3, 3, 2).tolist()
+        nows = np.linspace([0.0, 0.0, 0.0], [*goal, 1.0], 12) + rng.normal(0, 0.05, (12, 3))
+        walk(WalkTo, [goal, float(rng.uniform(0.3, 3.0))], nows)
+        path = np.cumsum(rng.normal(0, 1.0, (int(rng.integers(2, 7)), 2)), axis=0).tolist()
+        path.insert(1, list(path[0]))                       # a repeated point
+        along = np.concatenate([np.array(path)[np.linspace(0, len(path) - 1, 12).astype(int)],
+                                rng.uniform(-3, 3, (12, 1))], axis=1) + rng.normal(0, 0.3, (12, 3))
+        walk(FollowPath, [path, float(rng.uniform(0.3, 3.0))], along)
+        walk(Steer, [rng.normal(0, 1.5, 2).tolist(), rng.normal(0, 1, 2).tolist()], poses(5))
+        walk(Steer, [rng.normal(0, 0.1, 2).tolist(), None], poses(5))
+    capsules = []
+    for _ in range(5):
+        capsule, placed = GameRoot(), []
+        for frame in sorted(rng.choice(60, 4, replace=False).tolist()):
+            place = [*rng.uniform(-3, 3, 2).tolist(), float(rng.uniform(-9, 9))]
+            capsule.place(*place, frame)
+            placed.append({"place": place, "frame": frame, "at": capsule.at(frame + 3).tolist(),
+                           "future": capsule.future(np.zeros(3), np.array(times), 20.0, frame + 1).tolist()})
+        capsules.append(placed)
+    features = rng.normal(0, 0.05, (40, 263)).astype(np.float32)
+    root, next_poses = RootIntegrator(HUMANML3D), []
+    for i in range(0, 40, 4):
+        root.push(features[i:i + 4])
+        next_poses.append(root.next_pose().tolist())
+    return {"times": times, "encode": encoded, "requests": requests, "capsules": capsules,
+            "features": _floats(features), "next_poses": next_poses}
 
 
 def _floats(a: np.ndarray) -> list:
@@ -193,7 +246,8 @@ def units(out: Path, toy_tokenizer: Path | None) -> dict:
     tokenizer = tokenizer_cases(out, toy_tokenizer)
     return {"pcg64": pcg64_cases(), "sums": sum_cases(rng), "sampler": sampler_cases(rng), "tokenizer": tokenizer,
             "code_points": code_point_cases(out), "foot_lock": foot_lock_cases(np.random.default_rng(11)),
-            "tokenizer_parts": {part: sorted(types) for part, types in TOKENIZER_PARTS.items()}}
+            "tokenizer_parts": {part: sorted(types) for part, types in TOKENIZER_PARTS.items()},
+            "control": control_unit_cases(np.random.default_rng(26))}
 
 
 # ---- bundles: what MotionGenerator gives ---------------------------------------------------------------
@@ -251,6 +305,10 @@ def bundle_reference(path: Path, variant: str, long_seconds: float) -> dict:
                        **_motion(gen.generate(PROMPTS[1], seed=1))},
                       {"text": PROMPTS[0], "seed": "2", "sampling": SAMPLINGS[3], "seconds": 4.0,
                        **_motion(gen.generate(PROMPTS[0], seed=2, seconds=4.0, sampling=_sampling(SAMPLINGS[3])))}]
+    if gen.endless and gen.backend.control is not None:
+        golden = _make_golden()
+        out["control"] = [{**case, **golden.run_control_case({variant: gen}, case)}
+                          for case in golden.control_cases([variant])[::4]]
     if gen.endless:
         timeline = [(PROMPTS[0], 0.0), (PROMPTS[1], 0.3 * long_seconds), (PROMPTS[2], 0.55 * long_seconds + 0.07)]
         out["timeline"] = {"timeline": timeline, "seconds": long_seconds, "seed": "3",
@@ -260,6 +318,15 @@ def bundle_reference(path: Path, variant: str, long_seconds: float) -> dict:
     else:
         out["stream"] = clip_stream_reference(gen)
     return out
+
+
+def _make_golden():
+    """tests/golden/make_golden.py, whose controlled streams every runtime reads the same way."""
+    spec = importlib.util.spec_from_file_location("make_golden", Path(__file__).resolve().parents[2] / "tests" / "golden"
+                                                  / "make_golden.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def stream_reference(gen: MotionGenerator, seconds: float) -> dict:

@@ -2,9 +2,9 @@
 # The JavaScript runtime's tests, from a clean clone (`make test-js` runs this):
 #   1. install onnxruntime-node into js/node_modules if it is missing (--ignore-scripts: its postinstall
 #      downloads binaries the registry package already ships, and fails offline);
-#   2. build the toy bundles of tests/runtime/toy_bundle.py (with and without a streaming section, and with the
-#      portable, int8_fixed and ORT-format variants) in a temporary folder, with the repository's venv, and broken
-#      copies of them (test/make_broken.py);
+#   2. build the toy bundles of tests/runtime/toy_bundle.py (with and without a streaming section, with the
+#      portable, int8_fixed and ORT-format variants, and with control) in a temporary folder, with the repository's
+#      venv, and broken copies of them (test/make_broken.py);
 #   3. write what the Python runtime gives on them (js/test/make_reference.py);
 #   4. run `node --test`, which compares and prints the parity numbers (lines starting "parity:").
 #
@@ -33,6 +33,7 @@ fi
 
 "$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/toy"
 "$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/toy-clips" --seed 1 --clips
+"$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/toy-control" --control   # tests/golden/toy_control.json's
 # as the pytest fixture portable_toy_bundle, its decoder centred on the mean pose the toy's manifest records
 (cd "$ROOT/tests/runtime" && "$PY" -c "import json, sys; import numpy as np; from pathlib import Path; from toy_bundle import build_toy_bundle
 mean = np.array(json.loads(Path(sys.argv[1], 'manifest.json').read_text())['normalization']['mean'], np.float32)
@@ -40,7 +41,8 @@ build_toy_bundle(Path(sys.argv[2]), mean, portable=True, ort=True)" "$WORK/toy" 
 # broken bundles, one graph damaged in each, hashes forged (js/test/make_broken.py)
 "$PY" "$JS/test/make_broken.py" "$WORK/toy" "$WORK/toy-portable" "$WORK/broken"
 
-BUNDLES=(--bundle "toy=$WORK/toy" --bundle "toy-clips=$WORK/toy-clips" --bundle "toy-portable=$WORK/toy-portable")
+BUNDLES=(--bundle "toy=$WORK/toy" --bundle "toy-clips=$WORK/toy-clips" --bundle "toy-portable=$WORK/toy-portable"
+  --bundle "toy-control=$WORK/toy-control")
 if [ "${MOGO_JS_TINY:-0}" = "1" ]; then
   if [ ! -f "$WORK/tiny/bundle/manifest.json" ]; then
     # as tests/tiny_bundle.py builds it, into our own folder (its .cache is shared with pytest)
@@ -57,4 +59,5 @@ done
 
 "$PY" "$JS/test/make_reference.py" --out "$WORK/reference" "${BUNDLES[@]}"
 cd "$JS"
-MOGO_JS_REFERENCE="$WORK/reference" MOGO_JS_TOY="$WORK/toy" MOGO_JS_BROKEN="$WORK/broken" node --test test/*.test.mjs
+MOGO_JS_REFERENCE="$WORK/reference" MOGO_JS_TOY="$WORK/toy" MOGO_JS_TOY_CONTROL="$WORK/toy-control" \
+  MOGO_JS_BROKEN="$WORK/broken" node --test test/*.test.mjs

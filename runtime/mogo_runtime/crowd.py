@@ -310,7 +310,8 @@ class Crowd:
             for c, f in zip(chars, features):
                 out[c] = c.frames.frames_from(f)
                 if c.steering is not None:
-                    out[c].joints = c.steering.update(out[c].index, out[c].joints, c.frames.joints)
+                    c.steering.update(out[c].index + len(out[c].joints), c.frames.joints)
+                    out[c].joints = c.steering.place(out[c].index, out[c].joints)
                 if c.recorded is not None:
                     c.recorded[1].append(out[c].features)
                     c.recorded[2].append(out[c].joints)

@@ -266,6 +266,6 @@ class GenerationTask:
             features = self.backend.decode(maker.window(n)[None])[0]
         frames = maker.frames_from(features, self.clock)
         if steering is not None:
-            frames.joints = steering.update(frames.index, frames.joints, maker.joints)
+            steering.update(frames.index + len(frames.joints), maker.joints)
         return frames
 

@@ -69,6 +69,7 @@ class FrameStream(Steerable):
             if control is not None and self._loop is not None else None
         self._frames = _frames(task.stream(emb, seed, chunk, self._loop, self.steering), task.backend.dims.fps)
         self._closed = False
+        self._shown = 0                  # the number of the next frame handed out
         # (token, text, aligned text) of the last SWITCH_HISTORY set_prompt calls: a stream runs for days
         self.switches: deque[tuple[int, str, str | None]] = deque(maxlen=SWITCH_HISTORY)
 
@@ -77,10 +78,14 @@ class FrameStream(Steerable):
 
     def __next__(self) -> Frame:
         try:
-            return next(self._frames)
+            frame = next(self._frames)
         except StopIteration:
             self._closed = True
             raise
+        self._shown = frame.index + 1
+        if self.steering is not None:        # on the game's capsule as placed up to now, when it owns the root
+            frame.joints = self.steering.place(frame.index, frame.joints[None])[0]
+        return frame
 
     @property
     def tokens(self) -> int:
@@ -110,6 +115,9 @@ class FrameStream(Steerable):
     def _check_open(self) -> None:
         if self._closed:
             raise ValueError("this stream is closed (close(), or its motion ended): it goes nowhere any more")
+
+    def _next_shown(self, s) -> int:
+        return self._shown
 
     def _why_not(self) -> str:
         return (super()._why_not() if self._loop is not None else "this bundle was not trained for endless streams "

@@ -2,10 +2,16 @@
 runtime must give. Written by the Python runtime; checked by tests/runtime/test_golden.py (Python),
 js/test/golden.test.mjs (Node) and the browser test (web/). Regenerate only when the contract changes on purpose:
 
-    .venv/bin/python tests/golden/make_golden.py        # rewrites tests/golden/toy.json, prints what changed
+    .venv/bin/python tests/golden/make_golden.py        # rewrites tests/golden/toy*.json, prints what changed
 
 The toy bundle (tests/runtime/toy_bundle.py) is built from a seeded numpy generator, so every machine builds the
 same graphs; the file keeps their sha256, so a failing check says whether the bundle or the loop changed.
+
+tests/golden/toy_control.json holds controlled streams on the toy bundle with control (build_toy_bundle(...,
+portable=True, control=True)): a scripted list of requests (walk_to, follow_path, steer with and without facing,
+set_root every token for a while, release), each made before the first frame of its token is read, and for each
+case the tokens, the control vector each was picked with (float32), the token each request landed at and whether the
+character had arrived after each token.
 """
 from __future__ import annotations
 
@@ -19,6 +25,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
 GOLDEN = HERE / "toy.json"
+GOLDEN_CONTROL = HERE / "toy_control.json"
 
 PROMPTS = ["a person walks forward", "a person jumps twice", "a person walks in a circle"]
 SEEDS = [0, 1, 2 ** 63 - 1]
@@ -47,6 +54,58 @@ def cases(variants: list[str]) -> list[dict]:
     return out
 
 
+CONTROL_VARIANTS = ("fp32", "int8", "portable")
+CONTROL_SAMPLINGS = {k: SAMPLINGS[k] for k in ("greedy", "top_p", "guided")}
+CONTROL_SECONDS = 6.0
+# [token, request, arguments]: made before the first frame of that token is read. The first lands while frames
+# still come 4 tokens at a time (the stream then makes them one token at a time); the path repeats a point.
+REQUESTS = [[3, "walk_to", [[1.0, 1.5], 1.4]],
+            [8, "follow_path", [[[0.0, 0.0], [1.0, 1.0], [1.0, 1.0], [3.0, 0.5]], 2.0]],
+            [13, "steer", [[0.6, -1.0], [1.0, 0.0]]],
+            *[[t, "set_root", [0.05 * t, 0.1 + 0.01 * t, 0.03 * t]] for t in range(16, 22)],
+            [22, "release", []],
+            [25, "walk_to", [[0.1, 0.3]]],                 # near: some arrive, at once or later
+            [28, "steer", [[0.1, 0.0]]]]
+
+
+def control_cases(variants) -> list[dict]:
+    return [{"variant": variant, "sampling": sampling, "seed": str(seed), "text": PROMPTS[i % len(PROMPTS)],
+             "seconds": CONTROL_SECONDS, "requests": REQUESTS}
+            for variant in variants for name, sampling in CONTROL_SAMPLINGS.items()
+            for i, seed in enumerate((0, 1, 5))]
+
+
+def run_control_case(generators: dict, case: dict) -> dict:
+    """A controlled stream, read frame by frame -> {tokens (T, L), controls (T, dim), landed, arrived}. The tokens
+    and their controls are read from the stream's context as they are picked (its ring holds the last few)."""
+    from mogo_runtime.bundle.sampling import SamplingConfig
+
+    gen = generators[case["variant"]]
+    stream = gen.stream(case["text"], seconds=case["seconds"], seed=int(case["seed"]),
+                        sampling=SamplingConfig(**case["sampling"]))
+    context, ds = stream.steering.context, gen.dims.downsample
+    out = {"tokens": [], "controls": [], "landed": [], "arrived": []}
+    frames = 0
+    while True:
+        if frames % ds == 0:
+            for t, name, args in case["requests"]:
+                if t == frames // ds:
+                    getattr(stream, name)(*args)
+                    out["landed"].append(stream.tokens)
+        try:
+            next(stream)
+        except StopIteration:
+            break
+        frames += 1
+        assert context.count - len(out["tokens"]) <= context.span, "tokens picked faster than the ring holds them"
+        for t in range(len(out["tokens"]), context.count):
+            out["tokens"].append(context.history[t % context.span].tolist())
+            out["controls"].append(context.controls[t % context.span].tolist())
+        if frames % ds == 0:
+            out["arrived"].append(stream.arrived)
+    return out
+
+
 def run_case(generators: dict, case: dict) -> list[list[list[int]]]:
     """-> one token list (T, L) per motion of the case."""
     from mogo_runtime.bundle.sampling import SamplingConfig
@@ -60,12 +119,12 @@ def run_case(generators: dict, case: dict) -> list[list[list[int]]]:
     return [m.tokens.tolist() for m in motions]
 
 
-def build_toy(out: Path) -> Path:
+def build_toy(out: Path, control: bool = False) -> Path:
     sys.path.insert(0, str(ROOT / "tests" / "runtime"))
     from toy_bundle import build_toy_bundle
 
     mean = np.load(ROOT.parent / "shared" / "fixtures" / "humanml3d" / "Mean.npy")
-    return build_toy_bundle(out, mean)
+    return build_toy_bundle(out, mean, portable=control, control=control)
 
 
 def bundle_hashes(bundle: Path, variants=("fp32", "int8")) -> dict:
@@ -87,12 +146,21 @@ def main() -> int:
             case["tokens"] = run_case(generators, case)
         golden = {"bundle": "tests/runtime/toy_bundle.py: build_toy_bundle(out, Mean.npy of the HumanML3D fixture)",
                   "files": bundle_hashes(bundle), "cases": all_cases}
-    old = json.loads(GOLDEN.read_text()) if GOLDEN.exists() else None
-    GOLDEN.write_text(json.dumps(golden, separators=(",", ":")) + "\n")
-    tokens = sum(len(t) for c in all_cases for t in c["tokens"])
-    changed = "new" if old is None else sum(a != b for a, b in zip(old["cases"], all_cases)) + abs(
-        len(old["cases"]) - len(all_cases))
-    print(f"wrote {GOLDEN}: {len(all_cases)} cases, {tokens} time steps; cases changed: {changed}")
+        bundle = build_toy(Path(tmp) / "toy-control", control=True)
+        generators = {v: MotionGenerator(bundle, variant=v) for v in CONTROL_VARIANTS}
+        controlled = control_cases(CONTROL_VARIANTS)
+        for case in controlled:
+            case.update(run_control_case(generators, case))
+        golden_control = {"bundle": "tests/runtime/toy_bundle.py: build_toy_bundle(out, Mean.npy of the HumanML3D "
+                                    "fixture, portable=True, control=True)",
+                          "files": bundle_hashes(bundle, CONTROL_VARIANTS), "cases": controlled}
+    for path, data in ((GOLDEN, golden), (GOLDEN_CONTROL, golden_control)):
+        old = json.loads(path.read_text()) if path.exists() else None
+        path.write_text(json.dumps(data, separators=(",", ":")) + "\n")
+        tokens = sum(len(c["tokens"]) if "requests" in c else sum(map(len, c["tokens"])) for c in data["cases"])
+        changed = "new" if old is None else sum(a != b for a, b in zip(old["cases"], data["cases"])) + abs(
+            len(old["cases"]) - len(data["cases"]))
+        print(f"wrote {path}: {len(data['cases'])} cases, {tokens} time steps; cases changed: {changed}")
     return 0
 
 

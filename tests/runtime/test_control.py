@@ -91,6 +91,16 @@ def test_follow_path_leads_back_onto_the_path_and_only_forward():
     assert path.arrived and np.allclose(end, [3.9, 4.0, 1.0])
 
 
+def test_a_path_overshot_past_its_end_still_steers_to_the_end():
+    """A character that runs past the end beside it (not within ARRIVE of it) makes the progress the whole length;
+    the next token's nearest-point search must still search the last segment (it searched none: argmin of nothing)."""
+    path = FollowPath([(0, 0), (0, 2)], speed=1.0)
+    for now in ([0.5, 3.0, 0.0], [0.5, 3.2, 0.0]):
+        future = path.future(np.array(now), TIMES)
+        assert path.progress == pytest.approx(2.0) and not path.arrived
+        assert np.allclose(future[:, :2], [0.0, 2.0])
+
+
 def test_steer_and_the_game_s_capsule():
     steer = Steer((1.0, 0.0), facing=(0.0, 1.0))       # strafing: moving +x, facing +z
     future = steer.future(np.array([0.0, 0.0, 0.3]), TIMES)
@@ -255,3 +265,42 @@ def test_cli_follow_reads_control_requests(tiny_bundle, toy_bundle, capsys, monk
     monkeypatch.setattr("sys.stdin", io.StringIO('{"prompt": "a person jumps", "goal": [1, 1]}\n'))
     assert main(args[:3] + [str(toy_bundle)] + args[4:]) == 2
     assert "trained without control" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------- the bounded correction
+
+def test_the_correction_is_bounded_per_frame_and_closes_the_error():
+    from mogo_runtime.control.warp import GAIN, MAX_SHIFT, MAX_TURN, RootWarp
+
+    warp = RootWarp()
+    body = np.random.default_rng(0).normal(size=(4, 22, 3)).astype(np.float32)
+    body[:, 0, [0, 2]] = 0.0                                             # the root over the origin, where it turns
+    assert warp.joints(0, body) is body                                  # never planned: untouched, bit for bit
+    pose = np.array([0.0, 0.0, 0.0])
+    error, heading = np.array([1.0, 0.0]), math.radians(40)              # a metre beside the path, 40 degrees off
+    shown, poses = [], []
+    for token in range(30):
+        start = 4 * token
+        here = warp.pose(np.array([0.0, 0.0, 0.0]), start)               # the model stands still at the origin
+        poses.append(here)
+        warp.plan(start, 4, here, heading - here[2], error - here[:2])
+        shown.append(warp.joints(start, np.repeat(body[:1], 4, axis=0)))
+    shown = np.concatenate(shown).astype(np.float64)
+    step = np.hypot(*(shown[1:, 0, [0, 2]] - shown[:-1, 0, [0, 2]]).T)  # the root: shifted only (turns about it)
+    assert step.max() <= MAX_SHIFT + 1e-6
+    toe = shown[:, 10]
+    turned = np.degrees(np.abs(np.diff(np.arctan2(*(toe[:, [0, 2]] - shown[:, 0, [0, 2]]).T))))
+    assert turned.max() <= math.degrees(MAX_TURN) + 1e-6
+    assert np.allclose(poses[-1][:2], error, atol=0.02) and abs(poses[-1][2] - heading) < math.radians(1)
+    assert GAIN < 1                                                      # a share per token: the loop reads again
+
+
+def test_a_frame_shown_after_the_next_plan_keeps_its_own_ease():
+    from mogo_runtime.control.warp import RootWarp
+
+    warp, body = RootWarp(), np.zeros((4, 22, 3), np.float32)
+    warp.plan(0, 4, np.zeros(3), 0.0, np.array([0.04, 0.0]))
+    before = warp.joints(0, body)
+    warp.plan(4, 4, warp.pose(np.zeros(3), 4), 0.0, np.array([0.0, 0.04]))   # planned before frames 0-3 are shown
+    assert np.array_equal(warp.joints(0, body), before)
+    assert np.allclose(before[:, 0, 0], [0.005, 0.01, 0.015, 0.02])    # half of 4 cm, eased over 4 frames

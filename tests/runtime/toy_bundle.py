@@ -7,8 +7,11 @@ joints, BVH and previews look like a person. The int8 variant is `quantize_dynam
 
 With `portable=True` the bundle also has the portable variant (docs/bundle.md, "The portable variant"): a step graph
 with the same weights over a cache of CAPACITY slots, written at `position`, and every graph at opset 17; with
-`ort=True` the int8 and portable variants also in ORT format, with a minimal build's operator list. The default
-bundle has neither: tests/golden/toy.json holds the sha256 of each of its files.
+`ort=True` the int8 and portable variants also in ORT format, with a minimal build's operator list. With
+`control=True` the model has control (docs/bundle.md, "Control"): every step graph takes a `control` input, projected
+onto layer 0's keys, so a control vector changes the logits of its own position and, through the cache, of every later
+one (a rebuilt context must feed each position its own vector again). The default bundle has none of these:
+tests/golden/toy.json holds the sha256 of each of its files (tests/golden/toy_control.json: of the control bundle's).
 """
 from __future__ import annotations
 
@@ -27,9 +30,9 @@ from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processor
 
 from mogo_runtime.bundle.manifest import INT8_FIXED, Manifest
 from mogo_runtime.bundle.sampling import SamplingConfig
-from mogo_runtime.bundle.sections import (PER_ROW_INT8, PORTABLE_OPSET, GraphFile, GraphSpec, ModelDims,
-                                          Normalization, OrtFormat, PortableSpec, Quantization, StreamingSpec,
-                                          TensorSpec, TextEncoderSpec, required_capacity)
+from mogo_runtime.bundle.sections import (PER_ROW_INT8, PORTABLE_OPSET, ControlSpec, GraphFile, GraphSpec,
+                                          ModelDims, Normalization, OrtFormat, PortableSpec, Quantization,
+                                          StreamingSpec, TensorSpec, TextEncoderSpec, required_capacity)
 from mogo_runtime.kinematics.features import FeatureLayout
 from mogo_runtime.kinematics.skeleton import HUMANML3D
 from mogo_runtime.text import TokenizerSettings, configure_tokenizer
@@ -45,6 +48,7 @@ DIMS = ModelDims(num_levels=L, codebook_size=K, n_layers=N_LAYERS, n_heads=N_HEA
                  text_dim=TEXT_DIM, max_rel_dist=64, downsample=DOWNSAMPLE, fps=FPS, receptive_field=RECEPTIVE,
                  feature_dim=D, latent_dim=LATENT, max_tokens=MAX_TOKENS)
 CAPACITY = required_capacity(DIMS, StreamingSpec(WINDOW, REFRESH))   # the portable step's cache slots
+CONTROL = ControlSpec(horizon=2, dim=9)    # control=True: the wanted root of the next 2 tokens
 
 
 def _model(nodes, name, inputs, outputs, inits, meta, opset: int = OPSET) -> onnx.ModelProto:
@@ -63,11 +67,13 @@ def _io(specs):
     return [_vi(s["name"], s["dtype"], s["shape"]) for s in specs]
 
 
-def graph_specs(text_dim: int = TEXT_DIM) -> dict:
+def graph_specs(text_dim: int = TEXT_DIM, control: bool = False) -> dict:
     cache = ["batch", L * N_HEADS, "past", HEAD_DIM]
     present = ["batch", L * N_HEADS, "past_plus_steps", HEAD_DIM]
     step_in = [{"name": "text_embedding", "dtype": "float32", "shape": ["batch", text_dim]},
                {"name": "tokens", "dtype": "int64", "shape": ["batch", "steps", L]}]
+    if control:
+        step_in.append({"name": "control", "dtype": "float32", "shape": ["batch", "steps", CONTROL.dim]})
     step_out = [{"name": "logits", "dtype": "float32", "shape": ["batch", "steps", L, K + 1]}]
     for i in range(N_LAYERS):
         for kv in ("key", "value"):
@@ -85,11 +91,12 @@ def graph_specs(text_dim: int = TEXT_DIM) -> dict:
     }
 
 
-def portable_step_spec() -> dict:
-    """The portable step's I/O: one time step, position, a cache of CAPACITY slots."""
+def portable_step_spec(control: bool = False) -> dict:
+    """The portable step's I/O: one time step, [its control,] position, a cache of CAPACITY slots."""
     cache = ["batch", L * N_HEADS, CAPACITY, HEAD_DIM]
     step_in = [{"name": "text_embedding", "dtype": "float32", "shape": ["batch", TEXT_DIM]},
                {"name": "tokens", "dtype": "int64", "shape": ["batch", 1, L]},
+               *([{"name": "control", "dtype": "float32", "shape": ["batch", 1, CONTROL.dim]}] if control else []),
                {"name": "position", "dtype": "int64", "shape": ["batch"]}]
     step_out = [{"name": "logits", "dtype": "float32", "shape": ["batch", 1, L, K + 1]}]
     for i in range(N_LAYERS):
@@ -126,9 +133,10 @@ def mean_pool_encoder(table: np.ndarray, max_length: int, name: str = "toy", ops
                    "max_length": str(max_length)}, opset)
 
 
-def step(rng, spec, fixed: bool = False, opset: int = OPSET) -> onnx.ModelProto:
+def step(rng, spec, fixed: bool = False, opset: int = OPSET, w_control: np.ndarray | None = None) -> onnx.ModelProto:
     """`fixed`: the portable step, whose cache of CAPACITY slots is written at `position` (ScatterElements) and
-    summed over the slots up to it; from an rng in the same state it has the dynamic step's weights."""
+    summed over the slots up to it; from an rng in the same state it has the dynamic step's weights. `w_control`
+    (CONTROL.dim, HEAD_DIM): the `control` input's projection, added to every level's layer-0 key."""
     nodes, inits = [], {"axis_time": np.array([2], np.int64), "axis_step": np.array([1], np.int64),
                         "half": np.array(0.5, np.float32), "level_logits": np.array([0, L, K + 1], np.int64)}
     if fixed:
@@ -155,8 +163,14 @@ def step(rng, spec, fixed: bool = False, opset: int = OPSET) -> onnx.ModelProto:
             w[0, :] = 0.0
             w[0, K] = 0.25
         inits[f"table{i}"], inits[f"w{i}"] = table, w
+        controlled = i == 0 and w_control is not None
+        nodes += [helper.make_node("Gather", [f"table{i}", "tokens"], [f"tok{i}" if controlled else f"e{i}"])]
+        if controlled:   # the control of each position onto its keys: (B, S, C) @ (C, Dh) -> (B, S, 1, Dh)
+            inits["w_control"] = w_control
+            nodes += [helper.make_node("MatMul", ["control", "w_control"], ["control_key"]),
+                      helper.make_node("Unsqueeze", ["control_key", "axis_time"], ["control_key4"]),
+                      helper.make_node("Add", [f"tok{i}", "control_key4"], [f"e{i}"])]
         nodes += [
-            helper.make_node("Gather", [f"table{i}", "tokens"], [f"e{i}"]),                  # (B, S, L, Dh)
             helper.make_node("Transpose", [f"e{i}"], [f"kv{i}"], perm=[0, 2, 1, 3]),          # (B, L, S, Dh)
             helper.make_node("Mul", [f"kv{i}", "half"], [f"v{i}"])]
         if fixed:
@@ -267,20 +281,29 @@ def _exporter_module(name: str):
     return module
 
 
+def control_weights(seed: int) -> np.ndarray:
+    """(CONTROL.dim, HEAD_DIM): the control's projection, from a generator of its own (the other weights are
+    drawn as without control). Channel 0 of the keys counts the steps (END's growth): the control leaves it alone."""
+    w = (0.5 * np.random.default_rng([seed, 26]).standard_normal((CONTROL.dim, HEAD_DIM))).astype(np.float32)
+    w[:, 0] = 0.0
+    return w
+
+
 def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = True, streaming: bool = True,
-                     portable: bool = False, ort: bool = False) -> Path:
+                     portable: bool = False, ort: bool = False, control: bool = False) -> Path:
     """Write a complete bundle to `out` (graphs, tokenizer.json, manifest.json with sizes and hashes)."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    specs = graph_specs()
+    specs = graph_specs(control=control)
+    w_control = control_weights(seed) if control else None
     opset = PORTABLE_OPSET if portable else OPSET      # every graph of the portable variant at its opset
     table = rng.standard_normal((len(WORDS) + 4, TEXT_DIM)).astype(np.float32)
     onnx.save(mean_pool_encoder(table, MAX_LEN, opset=opset), out / "text_encoder.onnx")
     step_rng = copy.deepcopy(rng)                      # the portable step: the same weights
-    onnx.save(step(rng, specs["step"], opset=opset), out / "step.onnx")
+    onnx.save(step(rng, specs["step"], opset=opset, w_control=w_control), out / "step.onnx")
     onnx.save(lookup(rng, specs["lookup"], opset), out / "lookup.onnx")
     onnx.save(decoder(rng, specs["decoder"], mean, opset), out / "decoder.onnx")
     configure_tokenizer(word_tokenizer(WORDS), TokenizerSettings(max_length=MAX_LEN)).save(str(out / "tokenizer.json"))
@@ -290,7 +313,8 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
         quantize_dynamic(str(out / "step.onnx"), str(out / "step.int8.onnx"), weight_type=QuantType.QInt8)
         variants["int8"] = {**fp32, "step": GraphFile("step.int8.onnx", Quantization("dynamic", {"weight_type": "QInt8"}))}
     if portable:
-        onnx.save(step(step_rng, portable_step_spec(), fixed=True, opset=opset), out / "step.portable.onnx")
+        onnx.save(step(step_rng, portable_step_spec(control), fixed=True, opset=opset, w_control=w_control),
+                  out / "step.portable.onnx")
         variants["portable"] = {**fp32, "step": GraphFile("step.portable.onnx")}
         if int8:   # the per-row int8 portable step
             quantize_per_row = _exporter_module("rowquant").quantize_per_row
@@ -309,7 +333,8 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
         sampling_defaults=SamplingConfig(temperature=1.0, top_p=0.95),
         graphs={g: _spec(io) for g, io in specs.items()}, variants=variants, files=files,
         streaming=StreamingSpec(window=WINDOW, refresh=REFRESH) if streaming else None,
-        portable=PortableSpec(CAPACITY, opset, _spec(portable_step_spec())) if portable else None, ort=ort_format)
+        portable=PortableSpec(CAPACITY, opset, _spec(portable_step_spec(control))) if portable else None,
+        ort=ort_format, control=CONTROL if control else None)
     manifest = manifest.to_dict()
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
     return out
@@ -328,6 +353,13 @@ def portable_toy_bundle(tmp_path_factory, humanml3d_fixture) -> Path:
                             portable=True, ort=True)
 
 
+@pytest.fixture(scope="session")
+def control_toy_bundle(tmp_path_factory, humanml3d_fixture) -> Path:
+    """The toy bundle whose model has control, with the portable variant (tests/golden/toy_control.json)."""
+    return build_toy_bundle(tmp_path_factory.mktemp("control_toy_bundle"), np.load(humanml3d_fixture / "Mean.npy"),
+                            portable=True, control=True)
+
+
 if __name__ == "__main__":   # js/test/run.sh and web/test/run.sh: python tests/runtime/toy_bundle.py OUT [--seed N] [--clips]
     import argparse
 
@@ -335,7 +367,9 @@ if __name__ == "__main__":   # js/test/run.sh and web/test/run.sh: python tests/
     ap.add_argument("out", type=Path)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--clips", action="store_true", help="no streaming section: a bundle of single clips")
+    ap.add_argument("--control", action="store_true", help="a model with control, and the portable variant")
     args = ap.parse_args()
     mean = np.load(Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "humanml3d" / "Mean.npy")
-    build_toy_bundle(args.out, mean, seed=args.seed, streaming=not args.clips)
+    build_toy_bundle(args.out, mean, seed=args.seed, streaming=not args.clips, portable=args.control,
+                     control=args.control)
     print(f"toy bundle built in {args.out}")

@@ -4,6 +4,9 @@
         tokens of CLIPS (prompt, seed, seconds) on every variant of each bundle, the bundle defaults' sampling
     python web/test/reference.py timeline BUNDLE VARIANT SEED TOKENS PROMPT SWITCH_TOKEN PROMPT2 < /dev/null
         tokens and joints of a stream that switched prompt at SWITCH_TOKEN (a timeline), as JSON on stdout
+    python web/test/reference.py control BUNDLE VARIANT SEED FRAMES PROMPT FRAME X Z < /dev/null
+        tokens and joints of FRAMES frames of a stream (the bundle's sampling, chunk 4, as the page's worker streams)
+        that was sent walking to (X, Z) before frame FRAME was read, with the token it landed at, as JSON on stdout
     python web/test/reference.py files FPS < joints.json
         for joints {"joints": flat (T, J, 3), "frames": T}: runtime/mogo_runtime/bvh.py's text and the frames of
         Motion.save's .json (rounded as it rounds), as JSON {"bvh": ..., "json_frames": ...} on stdout
@@ -51,6 +54,20 @@ def timeline(bundle: str, variant: str, seed: int, tokens: int, prompt: str, swi
     return {"tokens": motion.tokens.tolist(), "joints": np.asarray(motion.joints, np.float32).ravel().tolist()}
 
 
+def control(bundle: str, variant: str, seed: int, frames: int, prompt: str, frame: int, x: float, z: float) -> dict:
+    gen = MotionGenerator(bundle, variant=variant, threads=1)
+    stream = gen.stream(prompt, seed=seed)
+    context, tokens, joints, landed = stream.steering.context, [], [], None
+    for i in range(frames):
+        if i == frame:
+            stream.walk_to((x, z))
+            landed = stream.tokens
+        joints.append(next(stream).joints)
+        tokens += [context.history[t % context.span].tolist() for t in range(len(tokens), context.count)]
+    stream.close()
+    return {"tokens": tokens, "landed": landed, "joints": np.asarray(joints, np.float32).ravel().tolist()}
+
+
 def fixture() -> dict:
     clip = Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "humanml3d" / "new_joints" / "012314.npy"
     joints = np.load(clip).astype(np.float64)
@@ -70,6 +87,9 @@ def main(argv: list[str]) -> int:
     elif cmd == "timeline":
         bundle, variant, seed, tokens, prompt, switch, prompt2 = args
         print(json.dumps(timeline(bundle, variant, int(seed), int(tokens), prompt, int(switch), prompt2)))
+    elif cmd == "control":
+        bundle, variant, seed, frames, prompt, frame, x, z = args
+        print(json.dumps(control(bundle, variant, int(seed), int(frames), prompt, int(frame), float(x), float(z))))
     elif cmd == "files":
         data = json.load(sys.stdin)
         joints = np.asarray(data["joints"], np.float64).reshape(data["frames"], -1, 3)

@@ -4,7 +4,8 @@
 #   2. install web/'s npm packages (onnxruntime-web, three, playwright-core) if missing: `npm ci --ignore-scripts`
 #      from package-lock.json (no browser download: playwright-core drives the system chromium);
 #   3. build the toy bundle of tests/runtime/toy_bundle.py (endless, fp32 + int8) with the repository's venv, the
-#      copies of it the page test needs (toy-variants, toy-failing, and toy-clips: no endless streams), and write
+#      copies of it the page test needs (toy-variants, toy-failing, and toy-clips: no endless streams), the toy
+#      bundle with control (toy-control: click-to-walk, tests/golden/toy_control.json), and write
 #      what the Python runtime gives on the toy bundle and MOGO_WEB_BUNDLES (web/test/reference.py);
 #   4. run `node --test`: the BVH writer against bvh.py, then the page in headless chromium (page.test.mjs), which
 #      prints `web:` lines (tokens compared, time to first frame, frames per second, the screenshots' path).
@@ -43,6 +44,7 @@ trap 'rm -rf "$WORK"' EXIT
 
 "$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/bundles/toy"
 "$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/bundles/toy-clips" --clips
+"$PY" "$ROOT/tests/runtime/toy_bundle.py" "$WORK/bundles/toy-control" --control   # tests/golden/toy_control.json's
 "$PY" - "$WORK" <<'EOF'
 import sys
 from pathlib import Path

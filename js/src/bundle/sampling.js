@@ -1,7 +1,7 @@
 // The sampling settings (runtime/mogo_runtime/bundle/sampling.py): what a user passes to generate or stream, and
 // what a manifest's `sampling_defaults` section holds. The policy that applies them is policy.js.
 
-import { shown } from '../checks.js';
+import { asReal, shown } from '../checks.js';
 
 export class SamplingConfig {
   /**
@@ -17,10 +17,10 @@ export class SamplingConfig {
     if (topK !== null && !(Number.isInteger(topK) && topK >= 0)) {
       throw new RangeError(`top_k must be an int >= 1 (0 or None: no top-k cut), got ${shown(topK)}`);
     }
-    this.temperature = real('temperature', temperature, 'in [0, 100] (0 = greedy)', 0, 100);
+    this.temperature = asReal('temperature', temperature, 'in [0, 100] (0 = greedy)', 0, 100);
     this.topK = topK || null;
-    this.topP = topP === null ? null : real('top_p', topP, 'in (0, 1] or None', Number.MIN_VALUE, 1);
-    this.guidance = real('guidance', guidance, 'in [0, 100] (1 = off)', 0, 100);
+    this.topP = topP === null ? null : asReal('top_p', topP, 'in (0, 1] or None', Number.MIN_VALUE, 1);
+    this.guidance = asReal('guidance', guidance, 'in [0, 100] (1 = off)', 0, 100);
     Object.freeze(this);
   }
 
@@ -36,11 +36,4 @@ export class SamplingConfig {
 
   /** Whether each stream runs a second, unconditional step row (classifier-free guidance). */
   get guided() { return this.guidance !== 1; }
-}
-
-/** `value`, a number in [lo, hi] (checks.py as_real): a TypeError for a non-number, a RangeError outside. */
-function real(name, value, must, lo, hi) {
-  if (typeof value !== 'number') throw new TypeError(`${name} must be a number ${must}, got ${shown(value)}`);
-  if (!(value >= lo && value <= hi)) throw new RangeError(`${name} must be ${must}, got ${shown(value)}`);
-  return value;
 }

@@ -42,6 +42,13 @@ export class RootIntegrator {
     }
     return joints;
   }
+
+  /** The root pose [x, z, yaw] of the next frame, which the frames so far fix (the root faces (sin yaw, cos yaw)). */
+  nextPose() {
+    const [rotVel, vx, vz] = this.previous, angle = this.angle + rotVel;
+    const cos2 = Math.cos(2 * angle), sin2 = Math.sin(2 * angle);
+    return [this.x + (cos2 * vx - sin2 * vz), this.z + (sin2 * vx + cos2 * vz), -2.0 * angle];
+  }
 }
 
 /**
@@ -98,4 +105,10 @@ export class FrameJoints {
 
   /** features (n, D) of the next n frames -> joints (n, J, 3) float32. */
   push(features) { return this.lock.push(this.root.push(features), features); }
+
+  /** The root pose [x, z, yaw] of the next frame, where the frames so far put it (the lock's offset too). */
+  nextPose() {
+    const pose = this.root.nextPose();
+    return [pose[0] + this.lock.x, pose[1] + this.lock.z, pose[2]];
+  }
 }

@@ -3,8 +3,9 @@ frames have reached, and the control vector its next token is picked with.
 
     steering = Steering(spec, dims, context)     # context: the stream's endless.StreamContext
     steering.request(lambda s: WalkTo((4.0, 2.0)))     # from any thread
-    joints = steering.update(index, joints, frame_joints)  # after each token's frames: the game-owned root placed,
-                                                 # the pose read, the next token's control handed to the context
+    steering.update(next_index, frame_joints)    # after each token's frames: the pose read, the next token's
+                                                 # control handed to the context
+    joints = steering.place(index, joints)       # frames as shown: on the game's capsule when it owns the root
 
 The pose is that of the next frame, which the frames so far fix, so the control of token j is read from the root at
 frame j * downsample exactly as training read it from the data (control/vector.py). A stream steered this way makes
@@ -21,6 +22,7 @@ from ..bundle.sections import ControlSpec, ModelDims
 from ..kinematics.frames import FrameJoints
 from .targets import FollowPath, GameRoot, Steer, WalkTo
 from .vector import control_dim, encode
+from .warp import RootWarp, wrap
 
 
 class Steering:
@@ -30,6 +32,8 @@ class Steering:
         self.spec, self.fps, self.context = spec, dims.fps, context
         self._lock = threading.Lock()     # a request from the game's thread and the stream's update never interleave
         self.times = np.arange(1, spec.horizon + 1) * dims.downsample / dims.fps    # seconds ahead
+        self.downsample = dims.downsample
+        self.warp = RootWarp()
         self.target = None
         self.pose = np.zeros(3)            # the root of the next frame: frame 0 stands at the origin facing +z
         self.frame = 0                     # the next frame's index
@@ -48,27 +52,38 @@ class Steering:
             self.target = change(self)
             self.context.steer(self.vector())
 
-    def update(self, index: int, joints: np.ndarray, frames: FrameJoints) -> np.ndarray:
-        """After a stream's new frames: `place` them, and hand the next token's control to the stream's context."""
+    def update(self, index: int, frames: FrameJoints) -> None:
+        """After a stream's new frames, `index` the next frame's number and `frames` the FrameJoints that made them:
+        read the next frame's pose (the capsule's, when the game owns the root), hand the next token's control to
+        the stream's context, and plan the correction of the next token's frames (control/warp.py)."""
         with self._lock:
-            joints = self.place(index, joints, frames)
+            pose = self.warp.pose(frames.next_pose(), index)
+            target = self.target
+            if isinstance(target, GameRoot) and target.pose is not None:
+                pose[:2] = target.at(index)[:2]
+            self.pose, self.frame = pose, index
             self.context.steer(self.vector())
-            return joints
+            if target is not None and not isinstance(target, GameRoot):
+                wanted = target.future(pose, self.times[:1])[0]
+                reference = target.reference(pose)
+                self.warp.plan(index, self.downsample, pose, wrap(float(wanted[2] - pose[2])),
+                               (0.0, 0.0) if reference is None else reference - pose[:2])
 
-    def place(self, index: int, joints: np.ndarray, frames: FrameJoints) -> np.ndarray:
-        """A stream's new frames (n, J, 3), frame numbers index..index + n - 1, and the FrameJoints that made them
-        -> the frames as shown: moved onto the game's capsule when the game owns the root. Then the next frame's
-        pose is read (where the shown frames leave the root)."""
-        pose = frames.next_pose()
-        if isinstance(self.target, GameRoot) and self.target.pose is not None and len(joints):
-            # each frame's root onto the capsule there; the next frame's pose from the capsule too
-            capsule = np.stack([self.target.at(f)[:2] for f in range(index, index + len(joints))])
-            offsets = (capsule - joints[:, 0, [0, 2]]).astype(joints.dtype)
-            joints = joints.copy()
-            joints[..., 0] += offsets[:, None, 0]
-            joints[..., 2] += offsets[:, None, 1]
-            pose[:2] = self.target.at(index + len(joints))[:2]
-        self.pose, self.frame = pose, index + len(joints)
+    def place(self, index: int, joints: np.ndarray) -> np.ndarray:
+        """Frames (n, J, 3) numbered index.. as shown: on the game's capsule when the game owns the root (the
+        capsule where the game last placed it, moved on by its velocity), else with the correction planned for
+        them. A stream places each frame as it hands it out, so a game that calls set_root before reading a frame
+        gets that frame on that capsule."""
+        target = self.target
+        if not isinstance(target, GameRoot) or target.pose is None:
+            return self.warp.joints(index, joints)
+        if not len(joints):
+            return joints
+        capsule = np.stack([target.at(f)[:2] for f in range(index, index + len(joints))])
+        offsets = (capsule - joints[:, 0, [0, 2]]).astype(joints.dtype)
+        joints = joints.copy()
+        joints[..., 0] += offsets[:, None, 0]
+        joints[..., 2] += offsets[:, None, 1]
         return joints
 
 
@@ -90,6 +105,10 @@ class Steerable:
 
     def _check_open(self) -> None:
         """Raise ValueError where the stream or character follows no more requests."""
+
+    def _next_shown(self, s: Steering) -> int:
+        """The number of the next frame the game will be handed (a stream hands out decoded frames one by one)."""
+        return s.frame
 
     def walk_to(self, goal, speed: float = 1.3) -> None:
         """Walk to `goal` (world x, z in metres) at `speed` m/s, then stand there doing the prompt."""
@@ -114,7 +133,7 @@ class Steerable:
 
         def change(s: Steering):
             target = s.target if isinstance(s.target, GameRoot) else GameRoot()
-            target.place(x, z, heading, s.frame)
+            target.place(x, z, heading, self._next_shown(s))
             return target
         self._steer(change)
 

@@ -72,6 +72,10 @@ class WalkTo:
     """Go to `goal` (x, z) at `speed`, facing it; within ARRIVE of it, stand (facing as it arrived) until given
     another request."""
 
+    def reference(self, now: np.ndarray) -> None:
+        """Where the root should be now, if the request says (a path does): None, the goal is ahead."""
+        return None
+
     def __init__(self, goal, speed: float = 1.3):
         self.goal, self.speed, self.arrived = _point("goal", goal), _speed(speed), False
 
@@ -128,13 +132,18 @@ class FollowPath:
 
     def nearest(self, xz: np.ndarray) -> float:
         """Arc length of the point of the path nearest `xz`, searched from the progress so far to LOOKAHEAD on."""
-        first = max(0, int(np.searchsorted(self.starts, self.progress, side="right")) - 1)
+        # the segment the progress is on (the last one once the progress is the path's whole length: an overshoot)
+        first = min(max(0, int(np.searchsorted(self.starts, self.progress, side="right")) - 1), len(self.lengths) - 1)
         last = int(np.searchsorted(self.starts, self.progress + self.LOOKAHEAD, side="right"))
         k = np.arange(first, min(last, len(self.lengths)) if last > first else first + 1)
         along = np.clip(((xz - self.points[k]) * self.directions[k]).sum(1), 0.0, self.lengths[k])
         foot = self.points[k] + self.directions[k] * along[:, None]
         best = int(np.argmin(np.hypot(*(foot - xz).T)))
         return float(max(self.progress, self.starts[k[best]] + along[best]))
+
+    def reference(self, now: np.ndarray) -> np.ndarray:
+        """Where the root should be now: the point of the path nearest it (past the progress so far)."""
+        return self.at(np.array([self.nearest(now[:2])]))[0][0]
 
     def future(self, now: np.ndarray, times: np.ndarray) -> np.ndarray:
         self.progress = self.nearest(now[:2])
@@ -158,6 +167,9 @@ class Steer:
         if self.facing is not None and np.hypot(*self.facing) < 1e-6:
             raise ValueError("facing must be a direction (x, z), not (0, 0)")
         self.arrived = False
+
+    def reference(self, now: np.ndarray) -> None:
+        return None
 
     def future(self, now: np.ndarray, times: np.ndarray) -> np.ndarray:
         xz = now[:2] + self.velocity * times[:, None]

@@ -1,0 +1,113 @@
+"""A bounded correction of where a steered character's motion stands on the floor: a rigid turn and shift of the
+whole motion (about the vertical axis), eased in over each token's frames, that closes what is left between where
+the model walked and where the game asked.
+
+The model reads the game's request (the control vector) and picks its tokens to follow it, but its codes keep the
+root's path only approximately (a turn of 90 degrees decodes as 60-100), so a character left to the model alone
+drifts off a path. The correction rotates the motion at most MAX_TURN and shifts it at most MAX_SHIFT per frame:
+a planted toe about 0.15 m from the root moves under 1.2 cm a frame by the turn, 1 cm by the shift, against the
+2.5 cm a frame at which the skating measure (mogo_eval.streaming) counts a toe as sliding. What it costs in foot
+contact is measured (benchmarks/control.py, "feet").
+
+A point p (x, z) of the model's motion stands at M(phi) p + t, M(a) = [[cos a, sin a], [-sin a, cos a]] (turning
+facing (sin yaw, cos yaw) into yaw + a, as control/vector.py has yaw).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import NamedTuple
+
+import numpy as np
+
+MAX_TURN = math.radians(4.5)    # per frame: 90 degrees a second
+MAX_SHIFT = 0.01                # m per frame: 0.2 m/s
+GAIN = 0.5                      # of the error corrected over one token (then read again: a closed loop)
+
+# Scalar arithmetic throughout (no matrix products, no hypot): a BLAS product may fuse a multiply-add and hypot is
+# not correctly rounded everywhere, and the pose read through the warp feeds the control vector, whose tokens the
+# JavaScript runtime must reproduce bit for bit.
+
+
+def wrap(a: float) -> float:
+    """An angle into [-pi, pi], by whole turns (subtraction only: the same bits in every runtime)."""
+    while a > math.pi:
+        a -= math.tau
+    while a < -math.pi:
+        a += math.tau
+    return a
+
+
+def turned(a: float, x, z):
+    """(x, z) turned by a: M(a) (x, z)."""
+    c, s = math.cos(a), math.sin(a)
+    return c * x + s * z, -s * x + c * z
+
+
+class Ease(NamedTuple):
+    """From frame `start` on: the warp (phi, tx, tz), then a turn about (px, pz) and a shift eased in over
+    `frames`."""
+    start: int
+    phi: float
+    tx: float
+    tz: float
+    turn: float
+    sx: float
+    sz: float
+    px: float
+    pz: float
+    frames: int
+
+    def at(self, k: int) -> tuple[float, float, float]:
+        """The warp (phi, tx, tz) k frames into the ease (k >= frames: all of it)."""
+        f = min(k, self.frames) / self.frames if self.frames else 0.0
+        a = self.turn * f
+        x, z = turned(a, self.tx - self.px, self.tz - self.pz)
+        return self.phi + a, x + self.px + self.sx * f, z + self.pz + self.sz * f
+
+
+class RootWarp:
+    def __init__(self):
+        self.eases: deque[Ease] = deque([Ease(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)], maxlen=3)
+        self.active = False                       # no correction yet: frames pass through untouched
+
+    def _warp(self, frame: int) -> tuple[float, float, float]:
+        for ease in reversed(self.eases):
+            if frame >= ease.start:
+                return ease.at(frame - ease.start + 1)
+        first = self.eases[0]
+        return first.phi, first.tx, first.tz      # older than every ease kept: a frame shown that late
+
+    def pose(self, model_pose: np.ndarray, frame: int) -> np.ndarray:
+        """The pose (x, z, yaw) of the model's motion at `frame` -> where it stands (the eases planned so far; a
+        frame past them where the last one ends)."""
+        x, z, yaw = (float(v) for v in model_pose)
+        if self.active:
+            phi, tx, tz = self._warp(frame)
+            x, z = turned(phi, x, z)
+            x, z, yaw = x + tx, z + tz, yaw + phi
+        return np.array([x, z, yaw])
+
+    def plan(self, start: int, frames: int, pose: np.ndarray, turn: float, shift) -> None:
+        """From frame `start`: ease in a turn of GAIN * `turn` rad about `pose` (x, z, where it stands) and a shift
+        of GAIN * `shift` (x, z) over `frames` frames, bounded by MAX_TURN and MAX_SHIFT a frame."""
+        turn = min(max(GAIN * turn, -MAX_TURN * frames), MAX_TURN * frames)
+        sx, sz = GAIN * float(shift[0]), GAIN * float(shift[1])
+        norm = math.sqrt(sx * sx + sz * sz)
+        if norm > MAX_SHIFT * frames:
+            scale = MAX_SHIFT * frames / norm
+            sx, sz = sx * scale, sz * scale
+        phi, tx, tz = self._warp(start - 1)
+        self.eases.append(Ease(start, phi, tx, tz, turn, sx, sz, float(pose[0]), float(pose[1]), frames))
+        self.active = self.active or turn != 0.0 or norm > 0.0
+
+    def joints(self, index: int, joints: np.ndarray) -> np.ndarray:
+        """Frames (n, J, 3) numbered index.. -> where they stand."""
+        if not self.active:
+            return joints
+        out = np.array(joints, np.float64)
+        for i in range(len(out)):
+            phi, tx, tz = self._warp(index + i)
+            x, z = turned(phi, out[i, :, 0], out[i, :, 2])
+            out[i, :, 0], out[i, :, 2] = x + tx, z + tz
+        return out.astype(joints.dtype)
