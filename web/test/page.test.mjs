@@ -7,64 +7,29 @@
 //   - every bundle (toy, toy-variants, MOGO_WEB_BUNDLES) streams as a person streams it: Stream pressed as soon as it
 //     is enabled, ENDLESS.seconds of motion shown (the page's clock run ahead), a new prompt with Enter, the status
 //     never saying the stream ended; a stream whose worker throws is shown as an error, and only a stream the model
-//     ended (toy-clips, no endless streams) says so;
-//   - on a bundle with control (toy-control), a click on the ground sends the streaming character to the point under
-//     the click (within 1 cm of the camera ray's ground point, computed here), and the stream's tokens are Python's
-//     for the same request made before the same frame; the golden controlled streams (tests/golden/toy_control.json)
-//     in the page's own onnxruntime-web; and on MOGO_WEB_BUNDLES with control, the character arrives.
+//     ended (toy-clips, no endless streams) says so; click to walk and controlled streams: control.test.mjs.
 // Run by web/test/run.sh (make test-web), which builds the bundles and the reference; prints `web:` lines.
 
 import assert from 'node:assert/strict';
 import { execFileSync } from 'node:child_process';
-import { mkdirSync, readFileSync } from 'node:fs';
+import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { after, before, test } from 'node:test';
-import { fileURLToPath } from 'node:url';
+import { test } from 'node:test';
 
-import { chromium } from 'playwright-core';
-
-import { downloaded, rows, serve, sharedPrefix, skeletonPixels } from './browser.mjs';
+import { downloaded, rows, sharedPrefix, skeletonPixels } from './browser.mjs';
 import { compareBvh } from './compare.mjs';
+import { JOINT_TOLERANCE, OUT, PY, ROOT, bundleManifest, generate, open, reference, selectVariant, session,
+  useBrowser, waitState } from './session.mjs';
 
-const ROOT = fileURLToPath(new URL('../../', import.meta.url));
-const PY = process.env.PYTHON ?? join(ROOT, '.venv/bin/python');
-const REFERENCE = process.env.MOGO_WEB_REFERENCE;
-const OUT = process.env.MOGO_WEB_OUT ?? join(ROOT, 'outputs/web-test');
-const CHROMIUM = process.env.CHROMIUM ?? 'chromium';
-const JOINT_TOLERANCE = 1e-4;   // metres: onnxruntime-web's wasm kernels against onnxruntime's native ones
 const STREAM = { first: 'a person walks forward', then: 'a person jumps twice', seed: 5 };
 const ENDLESS = { first: 'a person walks forward', then: 'a person turns left', seed: 3, seconds: 20, switchAt: 10 };
-const WALK = { prompt: 'a person walks forward', seed: 4, click: [0.62, 0.8], after: 40, arriveSeconds: 30 };
-const WORK = process.env.MOGO_WEB_WORK;
 
-if (!REFERENCE) throw new Error('MOGO_WEB_REFERENCE is not set: run web/test/run.sh (make test-web)');
-const reference = JSON.parse(readFileSync(REFERENCE, 'utf8'));
-mkdirSync(OUT, { recursive: true });
-
-let server, browser;
-
-before(async () => {
-  const mounts = Object.entries(reference.bundles).flatMap(([name, b]) => ['--mount', `/test-bundles/${name}=${b.path}`]);
-  for (const made of ['toy-variants', 'toy-failing', 'toy-clips', 'toy-control']) {
-    mounts.push('--mount', `/test-bundles/${made}=${join(WORK, 'bundles', made)}`);
-  }
-  server = await serve(PY, ROOT, mounts);
-  browser = await chromium.launch({
-    executablePath: CHROMIUM,
-    // software WebGL (SwiftShader): a headless machine has no GPU
-    args: ['--use-angle=swiftshader', '--enable-unsafe-swiftshader'],
-  });
-});
-
-after(async () => {
-  await browser?.close();
-  server?.process.kill();
-});
+useBrowser();
 
 for (const [name, bundle] of Object.entries(reference.bundles)) {
   test(`the page on the ${name} bundle: Python's tokens, a stream that changes prompt, the skeleton on screen, files`,
     { timeout: 600_000 }, async () => {
-      const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/${name}`);
+      const { page, problems } = await open(`${session.server.url}web/?bundle=/test-bundles/${name}`);
       assert.equal(await page.evaluate(() => window.mogoPage.ready), true, `the page did not load: ${problems.join('; ')}`);
       const state = await page.evaluate(() => window.mogoPage.state);
       assert.deepEqual(state.variants.slice().sort(), bundle.variants.slice().sort(), 'variants offered');
@@ -113,7 +78,7 @@ for (const [name, bundle] of Object.entries(reference.bundles)) {
 }
 
 test('variants of a make the page does not know are offered only where they run here', { timeout: 120_000 }, async () => {
-  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy-variants`);
+  const { page, problems } = await open(`${session.server.url}web/?bundle=/test-bundles/toy-variants`);
   assert.equal(await page.evaluate(() => window.mogoPage.ready), true, `the page did not load: ${problems.join('; ')}`);
   const state = await page.evaluate(() => window.mogoPage.state);
   assert.deepEqual(state.variants, ['fp32', 'int8', 'copy']);
@@ -209,7 +174,7 @@ async function checkFiles(page, what) {
 for (const name of [...Object.keys(reference.bundles), 'toy-variants']) {
   test(`the ${name} bundle streams through the page's controls: ${ENDLESS.seconds} s of motion, a new prompt with Enter`,
     { timeout: 600_000 }, async () => {
-      const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/${name}`, { clock: true });
+      const { page, problems } = await open(`${session.server.url}web/?bundle=/test-bundles/${name}`, { clock: true });
       const run = await startStreaming(page, name, ENDLESS, { early: true });
       if (bundleManifest(name).streaming) await streamEndlessly(page, run);
       else await checkModelEnds(page, run);
@@ -252,7 +217,7 @@ async function streamEndlessly(page, run) {
 
 test('a stream whose worker throws is shown as an error with its message, not as an end', { timeout: 120_000 }, async () => {
   // toy-failing's decoder gives NaN for more than one token: the first token's frames come, then the worker throws
-  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy-failing`, { clock: true });
+  const { page, problems } = await open(`${session.server.url}web/?bundle=/test-bundles/toy-failing`, { clock: true });
   const failure = /^the stream failed after 4 frames: .*decoder\.onnx: the decoder graph produced NaN/;
   const run = await startStreaming(page, 'toy-failing', ENDLESS, { limitMs: 60_000 });
   let s = await play(page, run, (st) => st.busy !== 'streaming');
@@ -287,14 +252,14 @@ test('a stream whose worker throws is shown as an error with its message, not as
 });
 
 test('a stream on a bundle without endless streams ends when the model ends it, and says so', { timeout: 120_000 }, async () => {
-  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy-clips`, { clock: true });
+  const { page, problems } = await open(`${session.server.url}web/?bundle=/test-bundles/toy-clips`, { clock: true });
   await checkModelEnds(page, await startStreaming(page, 'toy-clips', ENDLESS, { limitMs: 60_000 }));
   assert.deepEqual(problems, [], 'errors in the page');
   await page.close();
 });
 
 test('Stop pressed while a stream waits for a variant check: nothing streams, the checks finish', { timeout: 120_000 }, async () => {
-  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy-variants`, { clock: true });
+  const { page, problems } = await open(`${session.server.url}web/?bundle=/test-bundles/toy-variants`, { clock: true });
   const run = await startStreaming(page, 'toy-variants', ENDLESS, { early: true, stop: true });
   assert.match(run.note, /^checking/, 'Stream was pressed while the page checked a variant');
   const ready = await page.evaluate(() => Promise.race([window.mogoPage.ready,
@@ -365,172 +330,6 @@ async function play(page, run, until, check = () => {}) {
   }
 }
 
-function bundleManifest(name) {
-  const folder = reference.bundles[name]?.path ?? join(WORK, 'bundles', name);
-  return JSON.parse(readFileSync(join(folder, 'manifest.json'), 'utf8'));
-}
-
-// ---- helpers ----------------------------------------------------------------------------------------------
-
-/** A new page at `url`; with `clock`, the page's timers and animation frames on a clock the test can run ahead. */
-async function open(url, { clock = false } = {}) {
-  const page = await browser.newPage({ viewport: { width: 1100, height: 700 }, acceptDownloads: true });
-  const problems = [];
-  page.on('pageerror', (e) => problems.push(`page error: ${e.message}`));
-  page.on('console', (m) => { if (m.type() === 'error') problems.push(`console: ${m.text()}`); });
-  page.on('crash', () => problems.push('the page crashed'));
-  if (clock) await page.clock.install();
-  await page.goto(url);
-  return { page, problems };
-}
-
-async function selectVariant(page, variant) {
-  const current = (await page.evaluate(() => window.mogoPage.state)).variant;
-  if (current === variant) return;
-  await page.selectOption('#variant', variant);
-  await waitState(page, (s, v) => s.variant === v && s.busy === null, variant);
-}
-
-async function generate(page, { text, seed, seconds }) {
-  await page.fill('#prompt', text);
-  await page.fill('#seed', String(seed));
-  await page.fill('#seconds', seconds === null ? '' : String(seconds));
-  const shows = (await page.evaluate(() => window.mogoPage.state)).shows;
-  await page.click('#generate');
-  const state = await waitState(page, (s, n) => s.shows > n && s.busy === null, shows);
-  return { motion: await page.evaluate(() => window.mogoPage.motion()), stats: state.stats.clip };
-}
-
-/** Wait until `predicate(state, arg)` holds; fail at once with the page's error if one appears. */
-async function waitState(page, predicate, arg) {
-  const errors = (await page.evaluate(() => window.mogoPage.state)).errors.length;
-  const handle = await page.waitForFunction(([source, a, e]) => {
-    const s = window.mogoPage.state;
-    // eslint-disable-next-line no-new-func
-    return s.errors.length > e || new Function('s', 'a', `return (${source})(s, a)`)(s, a) ? s : null;
-  }, [predicate.toString(), arg, errors], { timeout: 300_000 });
-  const state = await handle.jsonValue();
-  assert.ok(state.errors.length === errors, `the page reports: ${state.errors.slice(errors).join('; ')}`);
-  return state;
-}
-
-// ---- click to walk (bundles with control) -----------------------------------------------------------------
-
-test('click to walk: the click is a walkTo to the ground point under it, and the stream is Python\'s', { timeout: 300_000 }, async () => {
-  const name = 'toy-control';
-  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/${name}`);
-  assert.equal(await page.evaluate(() => window.mogoPage.ready), true, `the page did not load: ${problems.join('; ')}`);
-  const { walk, goal, motion } = await streamAndClick(page, name, (s, w) => s.shown >= w.frame + w.after, WALK.after);
-  const want = groundUnder(await page.evaluate(() => window.mogoPage.camera()), goal.click);
-  const miss = Math.hypot(walk.goal[0] - want[0], walk.goal[1] - want[1]);
-  assert.ok(miss <= 0.01, `the walkTo goal ${walk.goal} is ${miss} m from the ground under the click ${want}`);
-
-  const py = JSON.parse(execFileSync(PY, [join(ROOT, 'web/test/reference.py'), 'control', join(WORK, 'bundles', name),
-    motion.variant, String(WALK.seed), String(motion.numFrames), WALK.prompt, String(walk.frame), String(walk.goal[0]),
-    String(walk.goal[1])], { maxBuffer: 1 << 28, encoding: 'utf8' }));
-  assert.equal(walk.token, py.landed, 'the request landed at another token');
-  const got = rows(motion.picked, motion.levels), n = Math.min(got.length, py.tokens.length);
-  assert.ok(n >= walk.token + WALK.after / 4, `only ${n} tokens compared (the request landed at token ${walk.token})`);
-  assert.deepEqual(got.slice(0, n), py.tokens.slice(0, n), 'the stream\'s tokens differ from Python\'s');
-  let err = 0;
-  for (let i = 0; i < motion.joints.length; i++) err = Math.max(err, Math.abs(motion.joints[i] - py.joints[i]));
-  assert.ok(err <= JOINT_TOLERANCE, `the stream's joints differ from Python's by ${err} m`);
-  console.log(`web: ${name}/${motion.variant} click to walk: the click at (${goal.click.map((v) => v.toFixed(0))}) px sent `
-    + `walkTo([${walk.goal.map((v) => v.toFixed(3))}]) at token ${walk.token} (frame ${walk.frame}), ${(miss * 1000).toFixed(2)} mm `
-    + `from the ground under the click; ${n} tokens identical to Python's for the same request at the same token, `
-    + `${motion.numFrames} frames within ${err.toExponential(1)} m`);
-  assert.deepEqual(problems, [], 'errors in the page');
-  await page.close();
-});
-
-for (const [name, bundle] of Object.entries(reference.bundles)) {
-  if (!bundleManifest(name).control || !bundleManifest(name).streaming) continue;   // MOGO_WEB_BUNDLES with control
-  test(`click to walk on the ${name} bundle: the character arrives within 0.3 m`, { timeout: 600_000 }, async () => {
-    const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/${name}`);
-    assert.equal(await page.evaluate(() => window.mogoPage.ready), true, `the page did not load: ${problems.join('; ')}`);
-    const fps = bundleManifest(name).model.fps;
-    const { walk, motion } = await streamAndClick(page, name, (s, w) => s.shown >= w.frame + w.after
-      || window.mogoPage.motion().arrivals.length > 0, WALK.arriveSeconds * fps);
-    assert.ok(motion.arrivals.length, `${name}: no arrival in ${WALK.arriveSeconds} s of motion`);
-    const J3 = motion.joints.length / motion.numFrames, f = Math.min(motion.arrivals[0], motion.numFrames - 1);
-    const root = [motion.joints[f * J3], motion.joints[f * J3 + 2]];
-    const off = Math.hypot(root[0] - walk.goal[0], root[1] - walk.goal[1]);
-    assert.ok(off <= 0.3, `${name}: arrived ${off} m from the goal`);
-    console.log(`web: ${name}/${motion.variant} click to walk: arrived at frame ${f} (${((f - walk.frame) / fps).toFixed(1)} s `
-      + `after the request), the root ${(off * 100).toFixed(0)} cm from the goal`);
-    assert.deepEqual(problems, [], `${name}: errors in the page`);
-    await page.close();
-  });
-}
-
-/**
- * Stream WALK.prompt with the camera held still, click the ground, play until `until(state, {...walk, after})` holds
- * (evaluated in the page), stop.
- */
-async function streamAndClick(page, name, until, after) {
-  await page.uncheck('#follow');   // the camera stays where the click was aimed
-  await page.fill('#prompt', WALK.prompt);
-  await page.fill('#seed', String(WALK.seed));
-  await page.click('#stream');
-  await waitState(page, (s) => s.busy === 'streaming' && s.shown >= 8);
-  const camera = await page.evaluate(() => window.mogoPage.camera());
-  const click = [camera.rect.left + WALK.click[0] * camera.rect.width, camera.rect.top + WALK.click[1] * camera.rect.height];
-  await page.mouse.click(...click);
-  await page.waitForFunction(() => window.mogoPage.motion().walks.length === 1, null, { timeout: 60_000 });
-  const walk = (await page.evaluate(() => window.mogoPage.motion())).walks[0];
-  assert.deepEqual(await page.evaluate(() => window.mogoPage.camera()), camera, `${name}: the camera moved`);
-  await page.waitForFunction(([source, w]) => new Function('s', 'w', `return (${source})(s, w)`)(window.mogoPage.state, w),
-    [until.toString(), { ...walk, after }], { timeout: 600_000 });
-  await page.click('#stop');
-  await waitState(page, (s) => s.busy === null);
-  return { walk, goal: { click }, motion: await page.evaluate(() => window.mogoPage.motion()) };
-}
-
-/** The ground point [x, z] (y = 0) on the camera ray through client pixel `click`: three.js's conventions, by hand. */
-function groundUnder({ position, quaternion: [qx, qy, qz, qw], fov, aspect, rect }, [x, y]) {
-  const t = Math.tan((fov * Math.PI) / 360), ndc = [((x - rect.left) / rect.width) * 2 - 1, 1 - ((y - rect.top) / rect.height) * 2];
-  const v = [ndc[0] * t * aspect, ndc[1] * t, -1];   // the ray in the camera's frame (it looks down -z)
-  // rotated by the camera's quaternion: v + 2w (q x v) + 2 q x (q x v)
-  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-  const q = [qx, qy, qz], u = cross(q, v), w = cross(q, u);
-  const d = v.map((vi, i) => vi + 2 * qw * u[i] + 2 * w[i]);
-  const k = -position[1] / d[1];
-  return [position[0] + k * d[0], position[2] + k * d[2]];
-}
-
-// The golden controlled streams (tests/golden/toy_control.json) in the browser, read as Node reads them
-// (js/test/control_case.mjs), on the page's onnxruntime-web.
-test('the browser gives the golden controlled streams', { timeout: 300_000 }, async () => {
-  const golden = JSON.parse(readFileSync(join(ROOT, 'tests/golden/toy_control.json'), 'utf8'));
-  const manifest = bundleManifest('toy-control');
-  for (const [file, sha256] of Object.entries(golden.files)) {
-    assert.equal(manifest.files[file]?.sha256, sha256, `${file}: the control toy bundle changed since tests/golden/toy_control.json was written`);
-  }
-  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy-control`);
-  const result = await page.evaluate(async (cases) => {
-    const ort = await import('/web/node_modules/onnxruntime-web/dist/ort.wasm.min.mjs');
-    ort.env.wasm.wasmPaths = '/web/node_modules/onnxruntime-web/dist/';
-    ort.env.wasm.numThreads = 1;
-    const { MotionGenerator, urlLoader } = await import('/js/src/index.js');
-    const { compareControlCase, runControlCase, samplingOf } = await import('/js/test/control_case.mjs');
-    const gens = {}, wrong = [];
-    let vectors = 0, exact = 0, worst = 0;
-    for (const [i, c] of cases.entries()) {
-      gens[c.variant] ??= await MotionGenerator.load(urlLoader('/test-bundles/toy-control/'), { ort, variant: c.variant, threads: 1 });
-      const r = compareControlCase(await runControlCase(gens[c.variant], c, samplingOf(c.sampling)), c);
-      [vectors, exact, worst] = [vectors + r.vectors, exact + r.exact, Math.max(worst, r.worst)];
-      if (!r.same) wrong.push(i);
-    }
-    return { wrong, vectors, exact, worst };
-  }, golden.cases);
-  console.log(`web: golden control: ${golden.cases.length - result.wrong.length} of ${golden.cases.length} controlled streams `
-    + `identical to tests/golden/toy_control.json in Chromium; control vectors ${result.exact} of ${result.vectors} bit-identical, `
-    + `max |difference| ${result.worst.toExponential(1)}`);
-  assert.deepEqual(result.wrong, [], `golden controlled streams ${result.wrong.slice(0, 5).join(', ')} differ in the browser`);
-  assert.deepEqual(problems, [], 'errors in the page');
-  await page.close();
-});
-
 // The golden tokens (tests/golden/toy.json) in the browser: the JavaScript runtime on onnxruntime-web (wasm) in
 // the page's own context, every golden case on the toy bundle, exactly the stored tokens.
 test('the browser gives the golden tokens', { timeout: 300_000 }, async () => {
@@ -540,7 +339,7 @@ test('the browser gives the golden tokens', { timeout: 300_000 }, async () => {
   for (const [file, sha256] of Object.entries(golden.files)) {
     assert.equal(manifest.files[file]?.sha256, sha256, `${file}: the toy bundle changed since tests/golden/toy.json was written`);
   }
-  const { page, problems } = await open(`${server.url}web/?bundle=/test-bundles/toy`);
+  const { page, problems } = await open(`${session.server.url}web/?bundle=/test-bundles/toy`);
   const result = await page.evaluate(async (cases) => {
     const ort = await import('/web/node_modules/onnxruntime-web/dist/ort.wasm.min.mjs');
     ort.env.wasm.wasmPaths = '/web/node_modules/onnxruntime-web/dist/';

@@ -29,7 +29,7 @@ from .grounding import pose_to_joints
 from .in_place import stand_idle
 from .locomotion import _sidestep, _take_steps
 from .pose import FPS, SIDES, Pose, seconds_to_frames
-from .sequences import MIN_SPAN, _still, hold
+from .sequences import _still, hold, min_spans
 
 PATH_SECONDS = (20.0, 60.0)
 MAX_SPAN = 199          # frames: T2M keeps items shorter than 200, so every segment still loads as one
@@ -422,13 +422,7 @@ def _padding(actions: list[Action], fades: list[int]) -> list[tuple[int, int]]:
     for i in range(1, len(actions)):
         pads[i - 1][1] += max(0, fades[i] - _still(actions[i - 1].pose.angles[::-1]))
         pads[i][0] += max(0, fades[i] - _still(actions[i].pose.angles))
-    for i, a in enumerate(actions):
-        fade_out = fades[i + 1] if i + 1 < len(fades) else 0
-        span = a.pose.T + sum(pads[i]) - fades[i] // 2 - (fade_out - fade_out // 2)
-        short = max(0, MIN_SPAN - span)
-        pads[i][0] += short // 2
-        pads[i][1] += short - short // 2
-    return [(b, e) for b, e in pads]
+    return min_spans(actions, fades, pads)
 
 
 def _to_span(params: dict, shift: int, length: int) -> None:

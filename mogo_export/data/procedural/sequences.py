@@ -81,6 +81,12 @@ def _padding(actions: list[Action], fades: list[int]) -> list[tuple[int, int]]:
         half = fades[i] // 2
         pads[i - 1][1] += max(0, fades[i] - half - _still(actions[i - 1].pose.angles[::-1]))
         pads[i][0] += max(0, half - _still(actions[i].pose.angles))
+    return min_spans(actions, fades, pads)
+
+
+def min_spans(actions, fades: list[int], pads: list[list[int]]) -> list[tuple[int, int]]:
+    """`pads` (before, after) of each action lengthened evenly on both sides so that its span (its frames, its pads,
+    and half of each cross-fade) lasts MIN_SPAN frames."""
     for i, a in enumerate(actions):
         fade_out = fades[i + 1] if i + 1 < len(fades) else 0
         span = a.pose.T + sum(pads[i]) - fades[i] // 2 - (fade_out - fade_out // 2)
