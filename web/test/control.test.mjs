@@ -53,12 +53,19 @@ for (const [name, bundle] of Object.entries(reference.bundles)) {
     const { walk, motion } = await streamAndClick(page, name, (s, w) => s.shown >= w.frame + w.after
       || window.mogoPage.motion().arrivals.length > 0, WALK.arriveSeconds * fps);
     assert.ok(motion.arrivals.length, `${name}: no arrival in ${WALK.arriveSeconds} s of motion`);
+    // the runtime says "arrived" from the next frame's pose as it decodes, before the page shows that frame: the
+    // root shown must come within the arrival radius by then (the model may walk on after it: README, "Where it goes")
+    // "arrived" is read from the pose of the next frame to decode (the first of the next token), so look a token on
     const J3 = motion.joints.length / motion.numFrames, f = Math.min(motion.arrivals[0], motion.numFrames - 1);
-    const root = [motion.joints[f * J3], motion.joints[f * J3 + 2]];
-    const off = Math.hypot(root[0] - walk.goal[0], root[1] - walk.goal[1]);
-    assert.ok(off <= 0.3, `${name}: arrived ${off} m from the goal`);
-    console.log(`web: ${name}/${motion.variant} click to walk: arrived at frame ${f} (${((f - walk.frame) / fps).toFixed(1)} s `
-      + `after the request), the root ${(off * 100).toFixed(0)} cm from the goal`);
+    const last = Math.min(f + 2 * bundleManifest(name).model.downsample, motion.numFrames - 1);
+    let off = Infinity, at = -1;
+    for (let i = walk.frame; i <= last; i++) {
+      const d = Math.hypot(motion.joints[i * J3] - walk.goal[0], motion.joints[i * J3 + 2] - walk.goal[1]);
+      if (d < off) [off, at] = [d, i];
+    }
+    assert.ok(off <= 0.3, `${name}: came no closer than ${off} m to the goal`);
+    console.log(`web: ${name}/${motion.variant} click to walk: within ${(off * 100).toFixed(0)} cm of the goal at frame ${at} `
+      + `(${((at - walk.frame) / fps).toFixed(1)} s after the request), "arrived" said at frame ${f}`);
     assert.deepEqual(problems, [], `${name}: errors in the page`);
     await page.close();
   });
