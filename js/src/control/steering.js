@@ -30,9 +30,13 @@ export class Steering {
 
   /** The control vector of the next token: zeros without a target. */
   vector() {
-    if (this.target === null) return new Float32Array(this.spec.dim);
-    if (this.target instanceof GameRoot) return encode(this.pose, this.target.future(this.pose, this.times, this.fps, this.frame));
-    return encode(this.pose, this.target.future(this.pose, this.times));
+    return this.target === null ? new Float32Array(this.spec.dim) : encode(this.pose, this.wanted());
+  }
+
+  /** The target's wanted poses (horizon of [x, z, yaw]) from the pose now. */
+  wanted() {
+    if (this.target instanceof GameRoot) return this.target.future(this.pose, this.times, this.fps, this.frame);
+    return this.target.future(this.pose, this.times);
   }
 
   /** `change(this)` -> the new target (null: no control); the next token is picked with it. */
@@ -51,11 +55,15 @@ export class Steering {
     if (target instanceof GameRoot && target.pose !== null) [pose[0], pose[1]] = target.at(index);
     this.pose = pose;
     this.frame = index;
-    this.context.steer(this.vector());
-    if (target !== null && !(target instanceof GameRoot)) {   // the next token's correction (warp.js)
-      const wanted = target.future(pose, this.times.slice(0, 1))[0];
+    if (target === null) {
+      this.context.steer(this.vector());
+      return;
+    }
+    const wanted = this.wanted();
+    this.context.steer(encode(pose, wanted));
+    if (!(target instanceof GameRoot)) {   // the next token's correction, toward where it should be (warp.js)
       const reference = target.reference(pose);
-      this.warp.plan(index, this.downsample, pose, wrap(wanted[2] - pose[2]),
+      this.warp.plan(index, this.downsample, pose, wrap(wanted[0][2] - pose[2]),
         reference === null ? [0, 0] : [reference[0] - pose[0], reference[1] - pose[1]]);
     }
   }

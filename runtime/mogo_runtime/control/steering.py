@@ -40,11 +40,13 @@ class Steering:
 
     def vector(self) -> np.ndarray:
         """The control vector of the next token: zeros without a target."""
-        if self.target is None:
-            return np.zeros(self.spec.dim, np.float32)
+        return np.zeros(self.spec.dim, np.float32) if self.target is None else encode(self.pose, self._wanted())
+
+    def _wanted(self) -> np.ndarray:
+        """The target's wanted poses (horizon, 3) from the pose now."""
         if isinstance(self.target, GameRoot):
-            return encode(self.pose, self.target.future(self.pose, self.times, self.fps, self.frame))
-        return encode(self.pose, self.target.future(self.pose, self.times))
+            return self.target.future(self.pose, self.times, self.fps, self.frame)
+        return self.target.future(self.pose, self.times)
 
     def request(self, change: Callable[["Steering"], object]) -> None:
         """`change(self)` -> the new target (None: no control); the next token is picked with it."""
@@ -62,11 +64,14 @@ class Steering:
             if isinstance(target, GameRoot) and target.pose is not None:
                 pose[:2] = target.at(index)[:2]
             self.pose, self.frame = pose, index
-            self.context.steer(self.vector())
-            if target is not None and not isinstance(target, GameRoot):
-                wanted = target.future(pose, self.times[:1])[0]
+            if target is None:
+                self.context.steer(self.vector())
+                return
+            wanted = self._wanted()
+            self.context.steer(encode(pose, wanted))
+            if not isinstance(target, GameRoot):      # the next token's correction, toward where it should be
                 reference = target.reference(pose)
-                self.warp.plan(index, self.downsample, pose, wrap(float(wanted[2] - pose[2])),
+                self.warp.plan(index, self.downsample, pose, wrap(float(wanted[0, 2] - pose[2])),
                                (0.0, 0.0) if reference is None else reference - pose[:2])
 
     def place(self, index: int, joints: np.ndarray) -> np.ndarray:
