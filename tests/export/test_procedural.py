@@ -8,14 +8,14 @@ import pytest
 
 from mogo_export.data import procedural as P
 from mogo_export.data.dataset import read_captions
-from mogo_export.data.humanml3d import extract_features
 from mogo_export.data.timelines import read_timelines
 from mogo_export.data.procedural import captions, clips as C, families, locomotion, paths as PT, sequences as S, writer
 from mogo_export.data.procedural.action import FULL_BUDGET, TimeBudget
-from mogo_export.data.procedural.grounding import pose_to_joints
 from mogo_export.data.procedural.pose import FPS, MAX_SECONDS, Pose
 from mogo_runtime.kinematics.features import FeatureLayout, recover_from_ric
 from mogo_runtime.kinematics.skeleton import HUMANML3D
+
+from family_facts import OFF_FEET, motion_facts, through_features
 
 FAMILIES = list(families.FAMILIES)
 FEET = [7, 10, 8, 11]  # left ankle, left toe, right ankle, right toe (HumanML3D's contact joints)
@@ -188,7 +188,7 @@ def test_feet_on_the_floor_and_no_joint_below_it(clips):
         # a toe within 3 cm of the floor, or an ankle within 7.5 cm (on the heel, toes up, an ankle is
         # 6-7 cm up); frames with neither are airborne, which only jumps and runs have many of
         grounded = (j[:, [10, 11], 1].min(axis=1) < 0.03) | (j[:, [7, 8], 1].min(axis=1) < 0.075)
-        assert grounded.mean() > (0.5 if re.search("jump|run", name) else 0.97), name
+        assert grounded.mean() > (0.5 if OFF_FEET.search(name) else 0.97), name
 
 
 def test_no_flips_and_smooth(clips, humanml3d_fixture):
@@ -207,7 +207,7 @@ def test_no_flips_and_smooth(clips, humanml3d_fixture):
         ang, acc = rates(j)
         assert ang.max() < 60, name  # a flip turns a bone ~180 degrees in one frame
         assert acc.max() < 200, name  # kicks and landings reach ~160
-        assert acc[:, 0].max() < (100 if re.search("jump|run", name) else 50), name  # take-off, landing
+        assert acc[:, 0].max() < (100 if OFF_FEET.search(name) else 50), name  # take-off, landing
         pelvis.append(acc[:, 0])
     assert np.percentile(np.concatenate(pelvis), 95) < 20
 
@@ -232,7 +232,7 @@ def test_ranges_of_motion(clips):
 
 def _sided(family, text):
     """Sided actions name their side."""
-    side = re.fullmatch(r"(?:wave_|kick_|sidestep_|turn_)(left|right)(?:_hand)?", family)
+    side = re.fullmatch(r"[a-z_]+_(left|right)(?:_hand)?", family)
     return side is None or side.group(1) in text
 
 
@@ -358,40 +358,9 @@ def test_a_failed_build_leaves_nothing(tmp_path, monkeypatch):
 
 # --- every family does what its captions say --------------------------------------------------------------
 
-STAND_Y = pose_to_joints(Pose(2))[0, 0, 1]  # pelvis height of the neutral standing pose
-SIDE = {"left": dict(shoulder=16, wrist=20, ankle=7), "right": dict(shoulder=17, wrist=21, ankle=8)}
 IN_PLACE = {"wave_right_hand", "wave_left_hand", "clap", "punch", "kick_right", "kick_left", "squat", "bow",
             "raise_both_arms", "stand_idle", "sit_down", "jump_in_place", "turn_left", "turn_right"}
 TURNING = {"walk_circle", "turn_left", "turn_right"}
-
-
-def through_features(joints):
-    """The joints a model learns from: the writer's features, recovered (frame 0 faces +z)."""
-    return recover_from_ric(extract_features(joints, HUMANML3D), 22)
-
-
-def motion_facts(j):
-    """What the body does over frames j (T, 22, 3): root displacement start -> end along the initial facing
-    (`fwd`) and to its left (`left`), m; net heading change from the hips and shoulders, degrees (> 0 to the
-    left); root path length; pelvis rise above / drop below standing height (and at the end); and what the
-    hands, feet and head do."""
-    across = (j[:, 2] - j[:, 1]) + (j[:, 17] - j[:, 16])  # right minus left hip, and shoulder
-    heading = np.unwrap(np.arctan2(across[:, 2], -across[:, 0]))  # forward = up x across
-    h0, h1 = heading[:3].mean(), heading[-3:].mean()
-    d = j[-1, 0, [0, 2]] - j[0, 0, [0, 2]]
-    fwd = np.stack([np.sin(heading), np.cos(heading)], -1)
-    pelvis = j[:, 0, 1] - STAND_Y
-    m = dict(fwd=d @ [np.sin(h0), np.cos(h0)], left=d @ [np.cos(h0), -np.sin(h0)], dist=np.linalg.norm(d),
-             turn=np.degrees(h1 - h0), path=np.linalg.norm(np.diff(j[:, 0, [0, 2]], axis=0), axis=-1).sum(),
-             rise=pelvis.max(), drop=-pelvis.min(), end_drop=-pelvis[-3:].mean(),
-             airborne=j[:, [10, 11], 1].min(axis=1).max(),  # both toes off the floor
-             clap=np.linalg.norm(j[:, 20] - j[:, 21], axis=-1).min(), head_dip=j[:3, 15, 1].mean() - j[:, 15, 1].min())
-    for side, k in SIDE.items():
-        m[f"hand_up_{side}"] = (j[:, k["wrist"], 1] - j[:, k["shoulder"], 1]).max()
-        m[f"foot_up_{side}"] = j[:, k["ankle"], 1].max()
-        reach = j[:, k["wrist"], [0, 2]] - j[:, k["shoulder"], [0, 2]]
-        m[f"reach_{side}"] = (reach * fwd).sum(-1).max()
-    return m
 
 
 def promises(family, p, m):

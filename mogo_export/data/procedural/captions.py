@@ -7,6 +7,8 @@ lexicon, and the build fails loudly on one that is not (tests check every family
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 SPEED_WORDS = {"slow": "slowly", "normal": "", "fast": "quickly"}
@@ -109,23 +111,54 @@ _VERBS = {"applauds": "applaud", "bends": "bend", "boxes": "box", "brings": "bri
 _NOUN_OR_VERB = {"jump": "jump", "jumps": "jump", "kick": "kick", "kicks": "kick", "punch": "punch",
                  "punches": "punch", "squat": "squat", "squats": "squat", "step": "step", "steps": "step",
                  "bow": "bow", "bows": "bow", "turn": "turn", "turns": "turn"}
-LEXICON = {w: (w, pos) for pos, words in _WORDS.items() for w in words.split()}
-LEXICON.update({w: (lemma, "NOUN") for w, lemma in _NOUNS.items()})
-LEXICON.update({w: (lemma, "VERB") for w, lemma in _VERBS.items()})
+
+
+def _entries(words: dict) -> tuple[dict[str, tuple[str, str]], dict[str, str]]:
+    """A word table -> (word -> (lemma, POS), word -> lemma of the words that are a NOUN or a VERB by context).
+
+    A table maps a closed-class tag to a space-separated string of words, "NOUN" / "VERB" to {word: lemma}, and
+    "NOUN_OR_VERB" to {word: lemma}."""
+    out: dict[str, tuple[str, str]] = {}
+    for pos, entry in words.items():
+        if pos in ("NOUN", "VERB"):
+            out.update({w: (lemma, pos) for w, lemma in entry.items()})
+        elif pos != "NOUN_OR_VERB":
+            out.update({w: (w, pos) for w in entry.split()})
+    return out, dict(words.get("NOUN_OR_VERB", {}))
+
+
+@functools.cache
+def lexicon() -> tuple[dict[str, tuple[str, str]], dict[str, str]]:
+    """The whole lexicon: the shared words here and every family module's own WORDS (families.GROUPS), as
+    (word -> (lemma, POS), word -> lemma of NOUN-or-VERB words). Built on first use: the family modules
+    import this one for their phrasing helpers."""
+    from .families import GROUPS
+
+    lex, either = _entries({**_WORDS, "NOUN": _NOUNS, "VERB": _VERBS, "NOUN_OR_VERB": _NOUN_OR_VERB})
+    for group in GROUPS:
+        more, more_either = _entries(group.WORDS)
+        for w, entry in {**more, **{w: (lemma, "?") for w, lemma in more_either.items()}}.items():
+            known = lex.get(w) or (either.get(w) and (either[w], "?"))
+            if known and known != entry:
+                raise ValueError(f"{group.__name__}.WORDS gives {w!r} as {entry}, the lexicon has {known}")
+        lex.update(more)
+        either.update(more_either)
+    return lex, either
 
 
 def pos_tokens(caption: str) -> str:
     """HumanML3D's token field: 'a person walks forward.' -> 'a/DET person/NOUN walk/VERB forward/ADV'."""
+    lex, either = lexicon()
     out, prev = [], None
     for word in caption.lower().replace("-", "").split():
         word = "".join(ch for ch in word if ch.isalpha())
         if not word:
             continue
-        if word in _NOUN_OR_VERB:
+        if word in either:
             pos = "NOUN" if prev in ("DET", "NUM", "ADJ") else "VERB"
-            lemma = _NOUN_OR_VERB[word]
-        elif word in LEXICON:
-            lemma, pos = LEXICON[word]
+            lemma = either[word]
+        elif word in lex:
+            lemma, pos = lex[word]
         else:
             raise ValueError(f"caption word {word!r} is not in the procedural POS lexicon: {caption!r}")
         out.append(f"{lemma}/{pos}")

@@ -14,14 +14,13 @@ import numpy as np
 from .action import FULL_BUDGET, TimeBudget
 from .captions import sample_captions
 from .curves import ease
-from .families import FAMILIES
+from .families import FAMILIES, LAST_ONLY
 from .grounding import pose_to_joints
 from .pose import FPS, MAX_SECONDS, MIN_SECONDS, Pose
 
 
 BLEND_FRAMES = 10  # 0.5 s cross-fade between the two actions of a sequence
 SEQUENCE_EVERY = 5  # every 5th clip (index % 5 == 4) is a two-action sequence
-NOT_FIRST = ("sit_down",)  # ends seated: cannot hand over to a standing action in 0.5 s
 
 
 class Segment(NamedTuple):
@@ -71,7 +70,7 @@ def family_plan(num_clips: int, seed: int) -> list[tuple[str, ...]]:
     for i in range(num_clips):
         if i % SEQUENCE_EVERY == SEQUENCE_EVERY - 1:
             rng = np.random.default_rng([seed, i, 1])
-            first = str(rng.choice([f for f in names if f not in NOT_FIRST]))
+            first = str(rng.choice([f for f in names if f not in LAST_ONLY]))
             plan.append((first, str(rng.choice([f for f in names if f != first]))))
             continue
         if singles % len(names) == 0:

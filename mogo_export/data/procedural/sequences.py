@@ -13,7 +13,7 @@ import numpy as np
 from .action import Action, TimeBudget
 from .captions import sequence_captions, single_caption
 from .clips import Clip, Segment, blend
-from .families import FAMILIES
+from .families import FAMILIES, LAST_ONLY
 from .grounding import pose_to_joints
 from .pose import FPS, Pose
 
@@ -24,7 +24,6 @@ FADE_FRAMES = (6, 30)  # 0.3-1.5 s cross-fades between consecutive actions
 # least this long (2.1 s): its features then keep T2M's 40-frame minimum, so it loads as an item of its own.
 MIN_SPAN = 42
 STILL_DEG = 3.0  # an action has not started while no joint angle is this far from its first frame's
-LAST_ONLY = ("sit_down",)  # ends seated: no family starts from a seat, so it can only end a sequence
 
 
 def hold(pose: Pose, before: int, after: int) -> Pose:
