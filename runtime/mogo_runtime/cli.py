@@ -238,8 +238,8 @@ def cmd_generate(args) -> int:
     took = time.perf_counter() - start
     if show:
         print(file=sys.stderr)
-    if align:
-        print(f"mogo: aligned prompt: {motion.aligned_text!r}", file=sys.stderr)
+    if motion.aligned_text is not None:     # aligned, or split into the actions it names (" | " between them)
+        print(f"mogo: {'aligned prompt' if align else 'actions'}: {motion.aligned_text!r}", file=sys.stderr)
     if fixed:
         ended = "fixed length"
     else:
@@ -318,8 +318,8 @@ def cmd_stream(args) -> int:
     with _warnings_as_lines():
         frames = gen.stream(args.text, seconds=args.seconds, seed=args.seed, align=align,
                             sampling=_sampling(args, gen.sampling_defaults))
-    if align:
-        print(f"mogo: aligned prompt: {frames.aligned_text!r}", file=sys.stderr, flush=True)
+    if frames.aligned_text is not None:
+        print(f"mogo: {'aligned prompt' if align else 'actions'}: {frames.aligned_text!r}", file=sys.stderr, flush=True)
     out = sys.stdout
     arrived = False
     try:
@@ -331,7 +331,8 @@ def cmd_stream(args) -> int:
                 event = {"event": "prompt" if request.control is None else "control", "token": frames.tokens,
                          "frame": f.index}
                 if request.prompt is not None:
-                    event.update(text=request.prompt, **({"aligned": frames.aligned_text} if align else {}))
+                    event.update(text=request.prompt, **({"aligned": frames.aligned_text}
+                                                         if frames.aligned_text is not None else {}))
                 if request.control is not None:
                     event["request"] = {k: (f"{len(v)} points" if k == "path" else v) for k, v in request.control.items()}
                     arrived = False

@@ -74,13 +74,12 @@ class Character(Steerable):
     on a bundle whose model has control, where it goes (`walk_to`, `follow_path`, `steer`, `set_root`, `release`).
     Made by `Crowd.add`."""
 
-    def __init__(self, crowd: "Crowd", ident: int, text: str, emb: np.ndarray, seed: int, limit: int | None,
-                 record: bool):
+    def __init__(self, crowd: "Crowd", ident: int, text: str, cond, seed: int, limit: int | None, record: bool):
         self.crowd, self.id, self.text, self.seed, self.limit = crowd, ident, text, seed, limit
         self.slot: int | None = None        # its place in the crowd (rows slot * rows ...), None once removed
         control = crowd.backend.control
-        self.context = StreamContext(crowd.policy, emb, seed, crowd.gen.bundle.manifest.streaming,
-                                     control.dim if control else 0)
+        self.context = StreamContext(crowd.policy, cond.emb, seed, crowd.gen.bundle.manifest.streaming,
+                                     control.dim if control else 0, cond.limits)
         self.frames = FrameMaker(crowd.gen.dims, crowd.gen.skeleton, crowd.chunk)
         self.steering = Steering(control, crowd.gen.dims, self.context) if control else None
         self.switches: deque[tuple[int, str]] = deque(maxlen=SWITCH_HISTORY)
@@ -166,13 +165,13 @@ class Crowd:
             raise ValueError(f"add() takes one prompt (str), got {type(text).__name__}")
         limit = self.gen.tokens_for(seconds)
         (seed,) = expand_seeds(seed, 1)
-        emb = self.backend.encode_text(check_texts([text]))       # one prompt per call: padding never mixes
+        (cond,) = self.gen.condition(check_texts([text]))      # one prompt per call: padding never mixes
         with self._lock:
             if len(self.characters) >= self.max_characters:
                 raise ValueError(f"this crowd holds at most {self.max_characters} characters (each needs "
                                  f"{self.character_bytes / 2 ** 20:.1f} MiB of step cache); Crowd(..., "
                                  f"max_characters=N) sets another bound")
-            character = Character(self, self._next_id, text, emb, seed, limit, bool(record))
+            character = Character(self, self._next_id, text, cond, seed, limit, bool(record))
             self._next_id += 1
             rows, most = (len(self.characters) + 1) * self.policy.rows, self.max_characters * self.policy.rows
             if rows > len(self._cache[0]):      # its rows may hold a departed character's cache: finite, masked
@@ -189,10 +188,10 @@ class Crowd:
         that tick: the switch lands at the character's next token either way."""
         if not isinstance(text, str):
             raise ValueError(f"set_prompt() takes one prompt (str), got {type(text).__name__}")
-        emb = self.backend.encode_text(check_texts([text]))
+        (cond,) = self.gen.condition(check_texts([text]))
         with self._lock:
             self._slot(character)                        # a character removed from its crowd moves no more
-            character.context.condition(emb)
+            character.context.condition(cond.emb, cond.limits)
             character.text = text
             character.switches.append((character.count, text))
 

@@ -210,9 +210,10 @@ class GenerationTask:
         """-> one (T_b, L) token array per prompt. `progress(step, limit)` is called after every step."""
         return self._collect(self.steps(text_emb, seeds), len(seeds), progress)
 
-    def _collect(self, steps, batch: int, progress) -> list[np.ndarray]:
+    def _collect(self, steps, batch: int, progress, most: int | None = None) -> list[np.ndarray]:
+        most = most or self.fixed_tokens or self.max_tokens
         if progress is not None:        # called as each step's tokens are handed on
-            steps = (progress(t + 1, self.fixed_tokens or self.max_tokens) or item for t, item in enumerate(steps))
+            steps = (progress(t + 1, most) or item for t, item in enumerate(steps))
         return collect_tokens(steps, batch, self.backend.dims.num_levels)
 
     def run(self, text_emb: np.ndarray, seeds: list[int],
@@ -231,6 +232,26 @@ class GenerationTask:
                 if t + 1 in switch_at:
                     loop.set_prompt(text_embs[switch_at[t + 1]][None])
         return self._decoded(self._collect(steps(), 1, progress))[0]
+
+    def actions(self, text_embs: np.ndarray, limits: list[int | None], seed: int,
+                progress: Callable[[int, int], None] | None = None) -> Generated:
+        """One character playing the actions of text_embs (P, text_dim) in order (endless.StreamContext.condition):
+        until the last one ends (END, or its stated length; at most as long as every action's limit, or the model's
+        longest motion, added up), or for `fixed_tokens` exactly (the last action held)."""
+        loop = self.loop(text_embs[:1], [seed])
+        loop.set_actions(text_embs, limits)
+        stream, alive = loop.streams[0], np.ones(1, bool)
+        most = self.fixed_tokens or sum(n or self.max_tokens for n in limits)
+
+        def steps():
+            for _ in range(most):
+                picked = loop.step()
+                if self.fixed_tokens is None and stream.finished and stream.count > stream.finished_at:
+                    return          # the last action ended (END) and this pick started it again
+                yield picked, alive
+                if self.fixed_tokens is None and stream.finished:
+                    return
+        return self._decoded(self._collect(steps(), 1, progress, most))[0]
 
     def _decoded(self, token_seqs: list[np.ndarray]) -> list[Generated]:
         with self.clock("decode"):

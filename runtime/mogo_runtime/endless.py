@@ -31,7 +31,8 @@ class StreamContext:
     """One endless stream's token state: the step rows it is conditioned on, its random generator, its recent
     tokens, and what its next step feeds (`plan`), given the pick it then `accept`s."""
 
-    def __init__(self, policy: StepPolicy, emb: np.ndarray, seed: int, spec: StreamingSpec, control_dim: int = 0):
+    def __init__(self, policy: StepPolicy, emb: np.ndarray, seed: int, spec: StreamingSpec, control_dim: int = 0,
+                 limits: list[int | None] | None = None):
         self.policy, self.window, self.span = policy, spec.window, spec.window + spec.refresh
         self.rng = np.random.Generator(np.random.PCG64(seed))
         self.history = np.zeros((self.span, policy.dims.num_levels), np.int64)   # token t at t % span
@@ -44,12 +45,42 @@ class StreamContext:
         self.cached = 0                          # motion tokens in the context after its prefix
         self.motion = 0                          # tokens since the motion (re)started
         self.restarts = 0                        # motions ended by END and started again
-        self.condition(emb)
+        self.condition(emb, limits)
 
-    def condition(self, emb: np.ndarray) -> None:
-        """Follow the prompt of embedding `emb` (1, text_dim) from the next token on; nothing is kept."""
-        self.rows_emb = self.policy.condition(emb)          # (rows, text_dim)
-        self.restart = True
+    def condition(self, emb: np.ndarray, limits: list[int | None] | None = None) -> None:
+        """Follow the prompt of embeddings `emb` (P, text_dim) from the next token on; nothing is kept. P > 1: a
+        prompt of several actions (plan.py), played in order, action i for limits[i] tokens, or (None) until the model
+        ends it, at most the longest motion the model was trained on; the last one is then held as a prompt of one
+        action is: by restarting it at END."""
+        self.parts, self.limits = list(emb), list(limits or [None] * len(emb))
+        if len(self.limits) != len(self.parts):
+            raise ValueError(f"{len(self.parts)} actions but {len(self.limits)} limits")
+        self.part, self.finished_at = 0, None   # the action played; the token count when the last one first ended
+        self._start_part()
+
+    def _start_part(self) -> None:
+        self.rows_emb = self.policy.condition(self.parts[self.part][None])     # (rows, text_dim)
+        self.restart, self.in_part = True, 0
+
+    def _part_over(self) -> bool:
+        """The action played has run its course (stated duration, or as long as the model's longest motion);
+        a lone action runs until the model ends it."""
+        limit = self.limits[self.part]
+        if limit is None and self.part + 1 < len(self.parts):
+            limit = self.policy.dims.max_tokens
+        return limit is not None and self.in_part >= limit
+
+    def _next_part(self) -> None:
+        if self.part + 1 < len(self.parts):
+            self.part += 1
+        elif self.finished_at is None:
+            self.finished_at = self.count
+        self._start_part()
+
+    @property
+    def finished(self) -> bool:
+        """Whether the last action has ended once (it is then held, started again as the model ends it)."""
+        return self.finished_at is not None
 
     @property
     def may_end(self) -> bool:
@@ -82,13 +113,22 @@ class StreamContext:
         """The step's pick (L,) -> whether it is the stream's next token. END (level 0) is not: the motion ended, the
         prompt starts again with nothing kept, and the stream's step plans and picks again."""
         if picked[0] == self.policy.dims.end_id:
-            self.restart, self.restarts = True, self.restarts + 1
+            if self.limits[self.part] is None and self.part + 1 < len(self.parts):
+                self._next_part()               # the action ended: the next one starts
+            else:                               # the last action, or one held for its stated duration, starts again
+                self.restarts += 1
+                self.restart = True
+                if self.part + 1 == len(self.parts) and self.finished_at is None and self.limits[self.part] is None:
+                    self.finished_at = self.count
             return False
         self.history[self.count % self.span] = self.last = picked
         if self.controls is not None:
             self.controls[self.count % self.span] = self.control
         self.count += 1
         self.motion += 1
+        self.in_part += 1
+        if self._part_over():
+            self._next_part()
         return True
 
 
@@ -123,6 +163,16 @@ class EndlessLoop:
         with self._lock:
             for stream, emb in zip(self.streams, text_emb):
                 stream.condition(emb[None])
+            return self.count
+
+    def set_actions(self, text_emb: np.ndarray, limits: list[int | None]) -> int:
+        """A one-stream loop's stream plays the actions of embeddings (P, text_dim) in order from the next token on,
+        action i for limits[i] tokens or (None) until the model ends it (StreamContext.condition); -> that token's
+        index. Thread-safe as set_prompt."""
+        if len(self.streams) != 1:
+            raise ValueError(f"set_actions() steers a loop of one stream, this one has {len(self.streams)}")
+        with self._lock:
+            self.streams[0].condition(text_emb, limits)
             return self.count
 
     def step(self) -> np.ndarray:

@@ -31,6 +31,7 @@ from .control.steering import Steerable, Steering
 from .decoding import Frames, Generated, GenerationTask
 from .engine import open_backend
 from .outputs.motion import Motion
+from .plan import PlannedAction, plan_actions
 from .policy import expand_seeds
 from .text import check_texts, check_threads
 
@@ -50,6 +51,21 @@ class Frame:
     joints: np.ndarray            # (J, 3) metres, y up
 
 
+@dataclass
+class Conditioning:
+    """What one prompt conditions the model on: one embedding per action it names (plan.py), the tokens each lasts
+    (None: until the model ends it), and the text shown as `aligned_text` (None: the prompt as typed)."""
+
+    emb: np.ndarray                    # (actions, text_dim) float32
+    limits: list[int | None]
+    aligned: str | None
+
+    @property
+    def single(self) -> bool:
+        """One action with no stated duration: the prompt runs as it always has, batched with others."""
+        return len(self.limits) == 1 and self.limits[0] is None
+
+
 SWITCH_HISTORY = 10_000   # ~1 MB of prompt switches kept per stream (a switch every 4 s: 11 hours)
 
 
@@ -58,12 +74,15 @@ class FrameStream(Steerable):
     text, and, on a bundle trained for endless streams, `set_prompt` to change what the character does; on one whose
     model has control, where it goes too (`walk_to`, `follow_path`, `steer`, `set_root`, `release`: control/).
 
-    `condition(texts, align)` -> (embeddings, aligned texts) is how the generator conditions on a prompt."""
+    `condition(texts, align)` -> a Conditioning per prompt is how the generator conditions on a prompt."""
 
-    def __init__(self, task: GenerationTask, emb: np.ndarray, seed: int, chunk: int, text: str,
-                 aligned_text: str | None, condition: Callable):
-        self.text, self.aligned_text, self._condition = text, aligned_text, condition
+    def __init__(self, task: GenerationTask, cond: Conditioning, seed: int, chunk: int, text: str,
+                 condition: Callable):
+        self.text, self.aligned_text, self._condition = text, cond.aligned, condition
+        emb = cond.emb[:1]
         self._loop = task.loop(emb, [seed]) if task.streaming is not None else None
+        if self._loop is not None and not cond.single:
+            self._loop.set_actions(cond.emb, cond.limits)
         control = task.backend.control
         self.steering = Steering(control, task.backend.dims, self._loop.streams[0]) \
             if control is not None and self._loop is not None else None
@@ -107,10 +126,10 @@ class FrameStream(Steerable):
             raise ValueError("this stream is closed (close(), or its motion ended): it follows no more prompts")
         if not isinstance(text, str):
             raise ValueError(f"set_prompt() takes one prompt (str), got {type(text).__name__}")
-        emb, aligned = self._condition(check_texts([text]), align)
-        token = self._loop.set_prompt(emb)
-        self.text, self.aligned_text = text, aligned[0]
-        self.switches.append((token, text, aligned[0]))
+        (cond,) = self._condition(check_texts([text]), align)
+        token = self._loop.set_actions(cond.emb, cond.limits)
+        self.text, self.aligned_text = text, cond.aligned
+        self.switches.append((token, text, cond.aligned))
 
     def _check_open(self) -> None:
         if self._closed:
@@ -196,9 +215,13 @@ class MotionGenerator:
         if isinstance(text, (list, tuple)) and text and all(isinstance(t, tuple) for t in text):
             return self._timeline(list(text), seconds, seed, sampling, align, progress, clock)
         texts = check_texts([text] if isinstance(text, str) else text)
-        task, emb, seeds, aligned = self._prepare(texts, seconds, seed, sampling, align, clock)
-        results = task.run(emb, seeds, progress)
-        motions = [self._motion(t, r, s, a) for t, r, s, a in zip(texts, results, seeds, aligned)]
+        task, conds, seeds = self._prepare(texts, seconds, seed, sampling, align, clock)
+        if all(c.single for c in conds):
+            results = task.run(np.concatenate([c.emb for c in conds]), seeds, progress)
+        else:       # a prompt of several actions plays them one after another: each prompt on its own
+            results = [task.run(c.emb, [s], progress)[0] if c.single else task.actions(c.emb, c.limits, s, progress)
+                       for c, s in zip(conds, seeds)]
+        motions = [self._motion(t, r, s, c.aligned) for t, r, s, c in zip(texts, results, seeds, conds)]
         return motions[0] if isinstance(text, str) else motions
 
     def _timeline(self, timeline, seconds, seed, sampling, align, progress, clock) -> Motion:
@@ -215,9 +238,10 @@ class MotionGenerator:
         if timeline[0][1] != 0 or any(b <= a for a, b in zip(starts, starts[1:])) or starts[-1] >= total:
             raise ValueError(f"timeline starts must begin at 0 and increase, each before the end ({seconds} s); got "
                              f"{shown([t for _, t in timeline], 200)}")
-        task, emb, seeds, aligned = self._prepare(texts, seconds, [expand_seeds(seed, 1)[0]] * len(texts),
-                                                  sampling, align, clock)
-        r = task.timeline(emb, starts, seeds[0], progress)
+        task, conds, seeds = self._prepare(texts, seconds, [expand_seeds(seed, 1)[0]] * len(texts), sampling,
+                                           align, clock, split=False)
+        r = task.timeline(np.concatenate([c.emb for c in conds]), starts, seeds[0], progress)
+        aligned = [c.aligned for c in conds]
         return self._motion(" | ".join(texts), r, seeds[0], None if aligned[0] is None else " | ".join(aligned))
 
     def _motion(self, text: str, r: Generated, seed: int, aligned: str | None) -> Motion:
@@ -238,20 +262,38 @@ class MotionGenerator:
         """
         if not isinstance(text, str):
             raise ValueError(f"stream() takes one prompt (str), got {type(text).__name__}; use generate() for a batch")
-        task, emb, seeds, aligned = self._prepare(check_texts([text]), seconds, seed, sampling, align)
-        return FrameStream(task, emb, seeds[0], chunk, text, aligned[0], self._condition)
+        task, conds, seeds = self._prepare(check_texts([text]), seconds, seed, sampling, align)
+        return FrameStream(task, conds[0], seeds[0], chunk, text, self.condition)
 
-    def _prepare(self, texts: list[str], seconds, seed, sampling, align, clock=None):
-        """What generate and stream share: checked arguments, the task, conditioning and seeds."""
+    def _prepare(self, texts: list[str], seconds, seed, sampling, align, clock=None, split: bool = True):
+        """What generate and stream share: checked arguments, the task, each prompt's Conditioning and seeds."""
         fixed = self.tokens_for(seconds)
         sampling = sampling_or(self.sampling_defaults, sampling)
         seeds = expand_seeds(seed, len(texts))
         clock = clock or NO_CLOCK
         with clock("text"):
-            emb, aligned = self._condition(texts, align)
+            conds = self.condition(texts, align, split)
         task = GenerationTask(self.backend, self.skeleton, sampling, self.max_tokens, fixed,
                               self.bundle.manifest.streaming, clock)
-        return task, emb, seeds, aligned
+        return task, conds, seeds
+
+    def condition(self, texts: list[str], align: bool | Aligner = False, split: bool = True) -> list[Conditioning]:
+        """What each prompt conditions the model on. On a bundle trained for endless streams (and `split`), a prompt
+        that names several actions ("walks forward and then jumps") is split into them (plan.py), each aligned and
+        encoded on its own, and its aligned text shows them joined by " | "; elsewhere a prompt is one
+        conditioning, as typed (or aligned)."""
+        plans = [plan_actions(t) if split and self.endless else [PlannedAction(t)] for t in texts]
+        if all(len(p) == 1 and p[0].seconds is None for p in plans):
+            emb, aligned = self._condition([p[0].text for p in plans], align)
+            return [Conditioning(e[None], [None], a) for e, a in zip(emb, aligned)]
+        out = []
+        for text, plan in zip(texts, plans):   # one encoder call per prompt: its actions' padding never mixes
+            emb, aligned = self._condition([a.text for a in plan], align)
+            parts = [al if al is not None else a.text for a, al in zip(plan, aligned)]
+            as_typed = parts == [text]
+            out.append(Conditioning(emb, [self.tokens_for(a.seconds) for a in plan],
+                                    None if as_typed else " | ".join(parts)))
+        return out
 
     def _condition(self, texts: list[str], align) -> tuple[np.ndarray, list[str | None]]:
         """-> (text embeddings (B, text_dim), aligned texts or None each)."""

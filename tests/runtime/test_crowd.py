@@ -11,7 +11,9 @@ PROMPTS = ["a person walks forward", "a person waves with the right hand", "a pe
            "a person turns left", "a person kicks"]
 # (prompt, seed, tick it joins at, seconds or None, (token, new prompt) or None)
 PLAN = [(PROMPTS[0], 1, 0, None, (9, PROMPTS[3])), (PROMPTS[1], 2, 0, 6.0, None), (PROMPTS[2], 3, 3, None, None),
-        (PROMPTS[4], 7, 5, 4.0, None), (PROMPTS[3], 11, 2, None, (17, PROMPTS[1])), (PROMPTS[0], 2 ** 63 - 1, 1, None, None)]
+        (PROMPTS[4], 7, 5, 4.0, None), (PROMPTS[3], 11, 2, None, (17, PROMPTS[1])), (PROMPTS[0], 2 ** 63 - 1, 1, None, None),
+        # a prompt of several actions (plan.py), one with a stated duration
+        ("a person jumps in place for 2 seconds, then turns left and then waves with the right hand", 5, 4, None, None)]
 TICKS = 60
 
 
