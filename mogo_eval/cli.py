@@ -80,6 +80,19 @@ def _stream(args) -> int:
     return 0
 
 
+def _actions(args) -> int:
+    from .actions import actions_report, print_report
+    from .protocol import write_json
+    from .quality import train_classifier
+
+    classifier = args.classifier or train_classifier(args.data, args.checkpoints)
+    report = actions_report(args.bundle, args.data, classifier, args.variant, args.threads, args.prompts, args.seed)
+    print_report(report)
+    if args.json:
+        print(f"wrote {write_json(report, args.json)}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from mogo_export.cli import add_training_args
 
@@ -146,6 +159,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seeds the prompts, their times and the stream")
     p.add_argument("--json", type=Path, default=None)
     p.set_defaults(run=_stream)
+
+    p = sub.add_parser("actions", help="prompts of two and three actions: is every action played, in order?")
+    p.add_argument("--bundle", type=Path, default=Path("bundles/base"))
+    p.add_argument("--variant", default="int8")
+    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads")
+    p.add_argument("--prompts", type=int, default=100, help="half of two actions, half of three")
+    p.add_argument("--data", type=Path, default=Path("data/procedural"), help="held-out captions, the classifier's data")
+    p.add_argument("--checkpoints", type=Path, default=Path("checkpoints/base"),
+                   help="where quality's classifier.pt is (trained there if missing)")
+    p.add_argument("--classifier", type=Path, default=None, help="a classifier.pt to use instead")
+    p.add_argument("--seed", type=int, default=0, help="seeds the prompts and the motions")
+    p.add_argument("--json", type=Path, default=None)
+    p.set_defaults(run=_actions)
 
     return ap
 

@@ -167,6 +167,7 @@ class Generated:
     tokens: np.ndarray      # (T, L) int64
     features: np.ndarray    # (T * downsample, D) de-normalised
     joints: np.ndarray      # (T * downsample, J, 3) metres, y up
+    starts: list[int] | None = None     # a prompt of several actions: the token each started at
 
 
 @dataclass
@@ -251,7 +252,9 @@ class GenerationTask:
                 yield picked, alive
                 if self.fixed_tokens is None and stream.finished:
                     return
-        return self._decoded(self._collect(steps(), 1, progress, most))[0]
+        out = self._decoded(self._collect(steps(), 1, progress, most))[0]
+        out.starts = [t for t in stream.starts if t < len(out.tokens)]
+        return out
 
     def _decoded(self, token_seqs: list[np.ndarray]) -> list[Generated]:
         with self.clock("decode"):

@@ -56,6 +56,7 @@ class StreamContext:
         if len(self.limits) != len(self.parts):
             raise ValueError(f"{len(self.parts)} actions but {len(self.limits)} limits")
         self.part, self.finished_at = 0, None   # the action played; the token count when the last one first ended
+        self.starts = [self.count]              # the token each action started at
         self._start_part()
 
     def _start_part(self) -> None:
@@ -73,6 +74,7 @@ class StreamContext:
     def _next_part(self) -> None:
         if self.part + 1 < len(self.parts):
             self.part += 1
+            self.starts.append(self.count)
         elif self.finished_at is None:
             self.finished_at = self.count
         self._start_part()

@@ -222,6 +222,9 @@ class MotionGenerator:
             results = [task.run(c.emb, [s], progress)[0] if c.single else task.actions(c.emb, c.limits, s, progress)
                        for c, s in zip(conds, seeds)]
         motions = [self._motion(t, r, s, c.aligned) for t, r, s, c in zip(texts, results, seeds, conds)]
+        for m, r, c in zip(motions, results, conds):
+            if r.starts is not None:
+                m.actions = [(a, t * self.dims.downsample) for a, t in zip(c.aligned.split(" | "), r.starts)]
         return motions[0] if isinstance(text, str) else motions
 
     def _timeline(self, timeline, seconds, seed, sampling, align, progress, clock) -> Motion:

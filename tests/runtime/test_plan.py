@@ -41,7 +41,8 @@ def test_each_action_plays_until_the_model_ends_it_then_the_next(gen):
         n = len(walk.tokens)
         # up to its END the first action is exactly the lone motion; then the second one plays, and ends the motion
         assert np.array_equal(both.tokens[:n], walk.tokens) and n < len(both.tokens) <= n + gen.max_tokens
-        assert both.aligned_text == f"{WALK} | {JUMP}"
+        assert both.aligned_text == f"{WALK} | {JUMP}" and walk.actions is None
+        assert both.actions == [(WALK, 0), (JUMP, n * gen.dims.downsample)]
     backend = Recorded(OrtBackend(gen.bundle), {"all": -1e9, 4: 1e9, 9: 1e9})   # END at calls 4 and 9
     loop = EndlessLoop(backend, backend.encode_text([WALK]), SamplingConfig(), [3], SPEC)
     loop.set_actions(backend.encode_text([WALK, JUMP]), [None, None])

@@ -36,6 +36,8 @@ class Motion:
     skeleton: Skeleton
     seed: int
     aligned_text: str | None = None   # the prompt after test-time text alignment (the paper's TCA), if any
+    # a prompt of several actions (plan.py): each action's text and the frame it starts at, in order
+    actions: list[tuple[str, int]] | None = None
 
     @property
     def num_frames(self) -> int:
