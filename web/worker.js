@@ -160,7 +160,12 @@ async function produce(me) {
     while (!me.stopped) {
       while (me.queued.length) {   // the generator is suspended between two frames here: no step in flight
         const text = me.queued.shift();
-        await me.stream.setPrompt(text);
+        try {
+          await me.stream.setPrompt(text);
+        } catch (e) {   // a prompt the stream refuses (more actions than it plays, a duration out of range): it goes on
+          self.postMessage({ type: 'refused', id: me.id, message: describe(e) });
+          continue;
+        }
         const sw = me.stream.switches[me.stream.switches.length - 1];
         self.postMessage({ type: 'switched', id: me.id, text, token: sw.token, frame: produced });
       }

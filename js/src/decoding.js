@@ -110,7 +110,7 @@ export class FrameMaker {
 
 /**
  * The generation recipe for one backend and one set of settings: embeddings and seeds in; tokens, features and
- * joints out, all at once (`run`, `timeline`) or frame by frame (`stream`).
+ * joints out, all at once (`run`, `timeline`, `actions`) or frame by frame (`stream`).
  *
  * `fixedTokens` fixes the length; null lets the model end each motion, at most `maxTokens`. Without `streaming`
  * a fixed length never picks END. With it (a bundle trained for endless streams), fixed lengths and streams run
@@ -148,8 +148,8 @@ export class GenerationTask {
     return this.#decoded(await this.#collect(this.steps(textEmb, seeds), seeds.length, onProgress));
   }
 
-  #collect(steps, batch, onProgress) {
-    const limit = this.fixedTokens ?? this.maxTokens;
+  #collect(steps, batch, onProgress, most = null) {
+    const limit = most || this.fixedTokens || this.maxTokens;
     return collectTokens(steps, batch, this.backend.dims.numLevels, onProgress && ((step) => onProgress(step, limit)));
   }
 
@@ -161,6 +161,27 @@ export class GenerationTask {
       if (switchAt.has(loop.count)) loop.setPrompt(row(switchAt.get(loop.count)));
     });
     return (await this.#decoded(await this.#collect(steps, 1, onProgress)))[0];
+  }
+
+  /**
+   * One character playing the actions of textEmbs (P, text_dim) in order (endless.js StreamContext.condition): until
+   * the last one ends (END, or its stated length; at most as long as every action's limit, or the model's longest
+   * motion, added up), or for `fixedTokens` exactly (the last action held). limits: P token counts or null.
+   */
+  async actions(textEmbs, limits, seed, onProgress = null) {
+    const loop = this.loop(textEmbs.slice(0, this.backend.dims.textDim), [seed]);
+    loop.setActions(textEmbs, limits);
+    const stream = loop.streams[0], alive = new Uint8Array(1).fill(1), fixed = this.fixedTokens;
+    const most = fixed || limits.reduce((n, limit) => n + (limit || this.maxTokens), 0);
+    async function* steps() {
+      for (let t = 0; t < most; t++) {
+        const picked = await loop.step();
+        if (fixed === null && stream.finished && stream.count > stream.finishedAt) return;   // END, and started again
+        yield { picked, alive };
+        if (fixed === null && stream.finished) return;
+      }
+    }
+    return (await this.#decoded(await this.#collect(steps(), 1, onProgress, most)))[0];
   }
 
   async #decoded(tokenSeqs) {

@@ -1,12 +1,14 @@
 // Endless streams (runtime/mogo_runtime/endless.py; docs/bundle.md, "Endless streams"): a stream never ends by
 // itself, follows a new prompt from the next token, and keeps a bounded context. Its context is its prompt's
 // prefix (BOS) plus motion tokens, rebuilt (fed from an empty cache as [BOS, kept tokens]) when:
-// - the prompt changed: nothing kept (the new prompt starts a motion as it would alone);
+// - the prompt changed: nothing kept (the new prompt starts a motion as it would alone); so too when one action of
+//   a prompt of several (plan.js) ends (END) or has run its stated length, and the next one starts;
 // - level 0 picked END: the motion ended where a clip would end; that pick is dropped (its draws stay
 //   consumed), the prompt starts again with nothing kept, and the step picks again, END forbidden;
 // - the context holds window + refresh motion tokens: the last `window` are kept.
 // So up to its first END a stream computes exactly what generateTokens computes. endless.py says why.
 
+import { shown } from './checks.js';
 import { PCG64 } from './pcg64.js';
 import { StepPolicy } from './policy.js';
 
@@ -15,7 +17,7 @@ import { StepPolicy } from './policy.js';
  * tokens, and what its next step feeds (`plan`), given the pick it then `accept`s.
  */
 export class StreamContext {
-  constructor(policy, emb, seed, spec, controlDim = 0) {
+  constructor(policy, emb, seed, spec, controlDim = 0, limits = null) {
     this.policy = policy;
     this.window = spec.window;
     this.span = spec.window + spec.refresh;
@@ -31,14 +33,46 @@ export class StreamContext {
     this.cached = 0;        // motion tokens in the context after its prefix
     this.motion = 0;        // tokens since the motion (re)started
     this.restarts = 0;      // motions ended by END and started again
-    this.condition(emb);
+    this.condition(emb, limits);
   }
 
-  /** Follow the prompt of embedding `emb` (1, text_dim) from the next token on; nothing is kept. */
-  condition(emb) {
-    this.rowsEmb = this.policy.condition(emb);
-    this.restart = true;
+  /**
+   * Follow the prompt of embeddings `emb` (P, text_dim) from the next token on; nothing is kept. P > 1: a prompt of
+   * several actions (plan.js), played in order, action i for limits[i] tokens, or (null) until the model ends it, at
+   * most the longest motion the model was trained on; the last one is then held as a prompt of one action is: by
+   * restarting it at END.
+   */
+  condition(emb, limits = null) {
+    const actions = actionsOf(emb, limits, this.policy.dims.textDim);
+    this.parts = actions.parts;
+    this.limits = actions.limits;
+    this.part = 0;             // the action played
+    this.finishedAt = null;    // the token count when the last action first ended
+    this.#startPart();
   }
+
+  #startPart() {
+    this.rowsEmb = this.policy.condition(this.parts[this.part]);   // (rows, text_dim)
+    this.restart = true;
+    this.inPart = 0;
+  }
+
+  /** The action played has run its course (stated duration, or as long as the model's longest motion); a lone action
+   * runs until the model ends it. */
+  #partOver() {
+    let limit = this.limits[this.part];
+    if (limit === null && this.part + 1 < this.parts.length) limit = this.policy.dims.maxTokens;
+    return limit !== null && this.inPart >= limit;
+  }
+
+  #nextPart() {
+    if (this.part + 1 < this.parts.length) this.part += 1;
+    else if (this.finishedAt === null) this.finishedAt = this.count;
+    this.#startPart();
+  }
+
+  /** Whether the last action has ended once (it is then held, started again as the model ends it). */
+  get finished() { return this.finishedAt !== null; }
 
   /** END may be picked once the motion has a token: never as a motion's first, so never twice in a row. */
   get mayEnd() { return this.motion >= 1; }
@@ -72,11 +106,20 @@ export class StreamContext {
     return { tokens, controls, fresh: true };
   }
 
-  /** The step's pick (L) -> whether it is the stream's next token (END is not: the motion starts again). */
+  /**
+   * The step's pick (L) -> whether it is the stream's next token. END is not: the action ended, so the next one
+   * starts (the last action, or one held for its stated duration, starts again), and the step picks again.
+   */
   accept(picked) {
     if (picked[0] === this.policy.dims.endId) {
-      this.restart = true;
-      this.restarts += 1;
+      const lone = this.limits[this.part] === null;   // played until the model ends it
+      if (lone && this.part + 1 < this.parts.length) {
+        this.#nextPart();           // the action ended: the next one starts
+      } else {                      // the last action, or one held for its stated duration, starts again
+        this.restarts += 1;
+        this.restart = true;
+        if (this.part + 1 === this.parts.length && this.finishedAt === null && lone) this.finishedAt = this.count;
+      }
       return false;
     }
     this.history.set(picked, (this.count % this.span) * picked.length);
@@ -84,8 +127,28 @@ export class StreamContext {
     this.last = picked;
     this.count += 1;
     this.motion += 1;
+    this.inPart += 1;
+    if (this.#partOver()) this.#nextPart();
     return true;
   }
+}
+
+/**
+ * Embeddings (P, text_dim) and P limits (tokens, or null: until the model ends it; none given: all null) -> {parts:
+ * P (text_dim) rows, limits}, checked.
+ */
+function actionsOf(emb, limits, textDim) {
+  const P = emb.length / textDim;
+  if (!Number.isInteger(P) || P < 1) {
+    throw new RangeError(`expected (actions, ${textDim}) text embeddings, got ${emb.length} values`);
+  }
+  const parts = Array.from({ length: P }, (_, i) => emb.slice(i * textDim, (i + 1) * textDim));
+  const given = limits?.length ? limits.map((n) => n ?? null) : parts.map(() => null);
+  if (given.length !== P) throw new RangeError(`${P} actions but ${given.length} limits`);
+  if (!given.every((n) => n === null || (Number.isInteger(n) && n >= 1))) {
+    throw new RangeError(`an action's limit is a number of tokens (an int >= 1) or null, got ${shown(limits)}`);
+  }
+  return { parts, limits: given };
 }
 
 /**
@@ -121,6 +184,23 @@ export class EndlessLoop {
     const make = () => this.streams.forEach((stream, b) => stream.condition(rows[b]));
     if (this.running === null) make();
     else this.deferred = make;   // a later switch replaces it: only the last would show
+    return this.running ?? this.count;
+  }
+
+  /**
+   * A one-stream loop's stream plays the actions of embeddings (P, text_dim) in order from the next token on, action
+   * i for limits[i] tokens or (null) until the model ends it (StreamContext.condition); -> that token's index. Asked
+   * for while a step runs, it is made when the step ends, as setPrompt.
+   */
+  setActions(textEmb, limits) {
+    if (this.streams.length !== 1) {
+      throw new RangeError(`setActions() steers a loop of one stream, this one has ${this.streams.length}`);
+    }
+    const emb = textEmb.slice(), given = limits && [...limits];
+    actionsOf(emb, given, this.backend.dims.textDim);   // refused now, not when the step ends
+    const make = () => this.streams[0].condition(emb, given);
+    if (this.running === null) make();
+    else this.deferred = make;
     return this.running ?? this.count;
   }
 

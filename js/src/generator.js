@@ -4,6 +4,8 @@
 //   const motion = await gen.generate('a person walks forward', { seconds: 6, seed: 1 });
 //   const s = await gen.stream('a person walks forward', { seed: 1 });
 //   for await (const frame of s) { if (frame.time === 6) await s.setPrompt('a person turns left'); ... }
+//   const both = await gen.generate('a person walks forward and then jumps');   // the actions one after another
+//   both.alignedText   // 'a person walks forward | a person jumps': what the model was conditioned on, in order
 //
 // The recipe is decoding.js's GenerationTask (step for step Python's); this module checks what a user asks for,
 // with Python's checks and defaults, and shapes the results.
@@ -15,6 +17,7 @@ import { shown } from './checks.js';
 import { Steerable, Steering } from './control/steering.js';
 import { GenerationTask } from './decoding.js';
 import { OrtBackend } from './engine.js';
+import { planActions } from './plan.js';
 import { expandSeeds } from './policy.js';
 
 export const MAX_SECONDS = 3600;   // the longest fixed length on an endless bundle: the whole motion is kept
@@ -73,14 +76,18 @@ export class MotionGenerator {
   get endless() { return this.bundle.manifest.streaming !== null; }
 
   /**
-   * One motion per prompt (an array for an array), all prompts in one batched loop.
+   * One motion per prompt (an array for an array), all prompts in one batched loop; on an endless bundle a prompt
+   * that names several actions ('walks forward and then jumps', plan.js) plays them one after another, each until
+   * the model ends it or for its stated duration ('for 3 seconds'), run on its own; its `alignedText` shows the
+   * actions joined by ' | ' (null for a prompt of one action, as typed).
    *
    * Prompt i of an array uses seed `seed + i` (or `seed[i]`), so it gets the motion a lone run with that seed
    * gets. `seconds` fixes the length (rounded half up to whole tokens); null lets the model end the motion, at
    * most `maxSeconds`. On an endless bundle a fixed length may be up to MAX_SECONDS, and a timeline
    * `[[prompt, startSeconds], ...]` (starts from 0, increasing; `seconds` required) gives one motion that
    * follows each prompt from its start. `sampling` null: the bundle's defaults.
-   * @returns {Promise<Motion|Motion[]>} Motion: {text, seed, fps, tokens, features, joints, numFrames, seconds},
+   * @returns {Promise<Motion|Motion[]>} Motion: {text, alignedText, seed, fps, tokens, features, joints, numFrames,
+   *   seconds},
    *   tokens {data: Int32Array, dims: [T, L]}, features {data, dims: [F, D]}, joints {data, dims: [F, J, 3]}
    */
   async generate(text, { seconds = null, seed = 0, sampling = null, onProgress = null } = {}) {
@@ -88,9 +95,18 @@ export class MotionGenerator {
       return this.#timeline(text, seconds, seed, sampling, onProgress);
     }
     const texts = checkTexts(typeof text === 'string' ? [text] : text);
-    const { task, emb, seeds } = await this.#prepare(texts, seconds, seed, sampling);
-    const results = await task.run(emb, seeds, onProgress);
-    const motions = results.map((r, i) => this.#motion(texts[i], r, seeds[i]));
+    const { task, conds, seeds } = await this.#prepare(texts, seconds, seed, sampling);
+    let results;
+    if (conds.every((c) => c.single)) {
+      results = await task.run(joined(conds.map((c) => c.emb)), seeds, onProgress);
+    } else {   // a prompt of several actions plays them one after another: each prompt on its own
+      results = [];
+      for (const [i, c] of conds.entries()) {
+        results.push(c.single ? (await task.run(c.emb, [seeds[i]], onProgress))[0]
+          : await task.actions(c.emb, c.limits, seeds[i], onProgress));
+      }
+    }
+    const motions = results.map((r, i) => this.#motion(texts[i], r, seeds[i], conds[i].aligned));
     return typeof text === 'string' ? motions[0] : motions;
   }
 
@@ -112,24 +128,25 @@ export class MotionGenerator {
         + `${shown(timeline.map(([, s]) => s), 200)}`);
     }
     const first = expandSeeds(seed, 1)[0];
-    const { task, emb } = await this.#prepare(texts, seconds, texts.map(() => first), sampling);
-    const r = await task.timeline(emb, starts, first, onProgress);
-    return this.#motion(texts.join(' | '), r, first);
+    const { task, conds } = await this.#prepare(texts, seconds, texts.map(() => first), sampling, false);
+    const r = await task.timeline(joined(conds.map((c) => c.emb)), starts, first, onProgress);
+    return this.#motion(texts.join(' | '), r, first, null);
   }
 
   /**
    * Frames of one prompt's motion as its tokens are sampled and decoded. On an endless bundle the stream has no
    * end unless `seconds` is given, and `setPrompt` changes the prompt from the next token; `close()` ends it.
    * The first token's frames come at once, then `chunk` tokens at a time. Arguments are checked and the prompt
-   * encoded here, before the first frame is asked for.
+   * encoded here, before the first frame is asked for. A prompt of several actions (plan.js) plays them in order,
+   * the last one held; the stream's `alignedText` shows them joined by ' | '.
    * @returns {Promise<FrameStream>} an async iterator of {index, time, features (D), joints (J * 3)}
    */
   async stream(text, { seconds = null, seed = 0, sampling = null, chunk = 4 } = {}) {
     if (typeof text !== 'string') {
       throw new TypeError(`stream() takes one prompt (a string), got ${typeof text}; use generate() for a batch`);
     }
-    const { task, emb, seeds } = await this.#prepare(checkTexts([text]), seconds, seed, sampling);
-    return new FrameStream(this, task, emb, seeds[0], chunk, text);
+    const { task, conds, seeds } = await this.#prepare(checkTexts([text]), seconds, seed, sampling);
+    return new FrameStream(this, task, conds[0], seeds[0], chunk, text);
   }
 
   /** Seconds -> a fixed number of tokens (half up), or null; RangeError outside the bundle's range. */
@@ -148,22 +165,57 @@ export class MotionGenerator {
     return tokens;
   }
 
-  /** What generate and stream share: checked arguments, the task, the prompts' embeddings and seeds. */
-  async #prepare(texts, seconds, seed, sampling) {
+  /** What generate and stream share: checked arguments, the task, each prompt's conditioning and seeds. */
+  async #prepare(texts, seconds, seed, sampling, split = true) {
     const fixedTokens = this.tokensFor(seconds);
     const config = sampling === null || sampling === undefined ? this.samplingDefaults : SamplingConfig.from(sampling);
     const seeds = expandSeeds(seed, texts.length);
-    const emb = await this.backend.encodeText(texts);
+    const conds = await this.condition(texts, split);
     const task = new GenerationTask({ backend: this.backend, skeleton: this.skeleton, sampling: config,
       maxTokens: this.maxTokens, fixedTokens, streaming: this.bundle.manifest.streaming });
-    return { task, emb, seeds };
+    return { task, conds, seeds };
   }
 
-  #motion(text, { tokens, features, joints }, seed) {
+  /**
+   * What each prompt conditions the model on: {emb (actions, text_dim), limits (tokens each action lasts, null: until
+   * the model ends it), aligned (the text shown as alignedText; null: the prompt as typed), single (one action, no
+   * stated duration: run as it always was, batched with others)}. On an endless bundle (and `split`) a prompt that
+   * names several actions is split into them (plan.js), encoded in one text-encoder call per prompt (its actions'
+   * padding never mixes with another prompt's); elsewhere a prompt is one conditioning, as typed.
+   */
+  async condition(texts, split = true) {
+    return this.encodePlans(texts, this.plan(texts, split));
+  }
+
+  /** Each prompt's actions [{text, seconds}] and their limits in tokens: checked now (RangeError), not encoded. */
+  plan(texts, split = true) {
+    return texts.map((t) => {
+      const actions = split && this.endless ? planActions(t) : [{ text: t, seconds: null }];
+      return { actions, limits: actions.map((a) => this.tokensFor(a.seconds)) };
+    });
+  }
+
+  /** The prompts `texts` planned (`plan`) -> their conditioning (`condition`). */
+  async encodePlans(texts, plans) {
+    const E = this.dims.textDim;
+    if (plans.every((p) => p.actions.length === 1 && p.limits[0] === null)) {
+      const emb = await this.backend.encodeText(plans.map((p) => p.actions[0].text));
+      return plans.map((p, i) => conditioning(emb.slice(i * E, (i + 1) * E), p.limits, null));
+    }
+    const out = [];
+    for (const [i, { actions, limits }] of plans.entries()) {   // one encoder call per prompt
+      const parts = actions.map((a) => a.text);
+      const asTyped = parts.length === 1 && parts[0] === texts[i];
+      out.push(conditioning(await this.backend.encodeText(parts), limits, asTyped ? null : parts.join(' | ')));
+    }
+    return out;
+  }
+
+  #motion(text, { tokens, features, joints }, seed, alignedText) {
     const { numLevels: L, featureDim: D } = this.dims;
     const J = this.skeleton.parents.length, frames = features.length / D;
     return {
-      text, seed, fps: this.fps, numFrames: frames, seconds: frames / this.fps,
+      text, alignedText, seed, fps: this.fps, numFrames: frames, seconds: frames / this.fps,
       tokens: { data: tokens, dims: [tokens.length / L, L] },
       features: { data: features, dims: [frames, D] },
       joints: { data: joints, dims: [frames, J, 3] },
@@ -174,22 +226,38 @@ export class MotionGenerator {
   async release() { await this.backend.release(); }
 }
 
+/** A prompt's conditioning (MotionGenerator.condition). */
+function conditioning(emb, limits, aligned) {
+  return { emb, limits, aligned, single: limits.length === 1 && limits[0] === null };
+}
+
+/** Float32Arrays end to end. */
+function joined(arrays) {
+  const out = new Float32Array(arrays.reduce((n, a) => n + a.length, 0));
+  arrays.reduce((at, a) => { out.set(a, at); return at + a.length; }, 0);
+  return out;
+}
+
 /**
- * What `MotionGenerator.stream` returns: an async iterator of frames, the prompt it follows now, and, on an
- * endless bundle, `setPrompt` to change what the character does from the next token sampled; on one whose model
- * has control, where it goes too (`walkTo`, `followPath`, `steer`, `setRoot`, `release`: control/). A request
- * made between two frames lands at the next token sampled.
+ * What `MotionGenerator.stream` returns: an async iterator of frames, the prompt it follows now (`text`, and
+ * `alignedText`: its actions joined by ' | ' where it names several, else null), and, on an endless bundle,
+ * `setPrompt` to change what the character does from the next token sampled; on one whose model has control, where
+ * it goes too (`walkTo`, `followPath`, `steer`, `setRoot`, `release`: control/). A request made between two frames
+ * lands at the next token sampled.
  */
 export class FrameStream extends Steerable {
-  constructor(gen, task, emb, seed, chunk, text) {
+  constructor(gen, task, cond, seed, chunk, text) {
     super();
     this.gen = gen;
     this.text = text;
-    this.switches = [];                 // {token, text} of each prompt switch, where it landed
+    this.alignedText = cond.aligned;
+    this.switches = [];                 // {token, text, alignedText} of each prompt switch, where it landed
     this.closed = false;                // close() was called, or the motion ended: no more prompts
     this.shown = 0;                     // the number of the next frame handed out
     this.pending = Promise.resolve();   // prompt switches being encoded, one at a time; each step waits for them
+    const emb = cond.emb.slice(0, gen.dims.textDim);   // the first action (a prompt of several: then the others)
     this.loop = task.streaming !== null ? task.loop(emb, [seed]) : null;
+    if (this.loop !== null && !cond.single) this.loop.setActions(cond.emb, cond.limits);
     const control = task.backend.control;
     this.steering = control && this.loop ? new Steering(control, task.backend.dims, this.loop.streams[0]) : null;
     this.frames = this.#frames(task.stream(emb, seed, chunk, this.loop, () => this.pending, this.steering));
@@ -205,8 +273,10 @@ export class FrameStream extends Steerable {
   get tokens() { return this.loop ? this.loop.count : 0; }
 
   /**
-   * Follow `text` from the next token sampled on (frames already decoded do not change). The switch lands at the
-   * next token even if this promise is not awaited first; asked for while a step runs, at the token after it.
+   * Follow `text` from the next token sampled on (frames already decoded do not change): a prompt of several actions
+   * plays them in order (plan.js), the last one held. The switch lands at the next token even if this promise is not
+   * awaited first; asked for while a step runs, at the token after it. A prompt that cannot be played (more than
+   * plan.MAX_ACTIONS actions, a duration out of range) is refused here, at once, and the stream goes on.
    */
   setPrompt(text) {
     if (this.loop === null) {
@@ -215,11 +285,13 @@ export class FrameStream extends Steerable {
     }
     if (this.closed) throw new Error('this stream is closed (close(), or its motion ended): it follows no more prompts');
     if (typeof text !== 'string') throw new TypeError(`setPrompt() takes one prompt (a string), got ${typeof text}`);
-    checkTexts([text]);
+    const plans = this.gen.plan(checkTexts([text]));
     this.pending = this.pending.then(async () => {
-      const token = this.loop.setPrompt(await this.gen.backend.encodeText([text]));
+      const [cond] = await this.gen.encodePlans([text], plans);
+      const token = this.loop.setActions(cond.emb, cond.limits);
       this.text = text;
-      this.switches.push({ token, text });
+      this.alignedText = cond.aligned;
+      this.switches.push({ token, text, alignedText: cond.aligned });
     });
     return this.pending;
   }

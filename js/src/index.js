@@ -17,6 +17,7 @@ export { Tokenizer, TokenizerError } from './tokenizer.js';
 export { PCG64 } from './pcg64.js';
 export { StepPolicy, expandSeeds, makeRngs, sample } from './policy.js';
 export { EndlessLoop, StreamContext } from './endless.js';
+export { MAX_ACTIONS, MOST_SECONDS, planActions } from './plan.js';
 export { FrameMaker, GenerationTask, collectTokens, decodeTokens, generateTokens } from './decoding.js';
 export { SKELETONS } from './kinematics/skeleton.js';
 export { recoverFromRic } from './kinematics/features.js';

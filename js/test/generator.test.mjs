@@ -101,5 +101,71 @@ test('a stream closed, or whose motion ended, follows no more prompts', async ()
   const ended = await endless.stream(WALK, { seed: 1, seconds: 1 });
   for await (const frame of ended) assert.ok(frame.time < 1);
   assert.throws(() => ended.setPrompt('a person turns left'), closed);
-  assert.deepEqual(s.switches, [{ token: 1, text: 'a person jumps twice' }]);
+  assert.deepEqual(s.switches, [{ token: 1, text: 'a person jumps twice', alignedText: null }]);
+});
+
+// A prompt of several actions (plan.js), as tests/runtime/test_plan.py holds the Python runtime to it.
+const JUMP = 'a person jumps twice', WAVE = 'a person waves with the right hand';
+
+test('each action of a prompt plays until the model ends it, then the next', async () => {
+  const L = endless.dims.numLevels;
+  for (let seed = 0; seed < 6; seed++) {
+    const walk = await endless.generate(WALK, { seed });   // a lone action: the model ends it
+    const both = await endless.generate(`${WALK} and then jumps twice`, { seed });
+    const n = walk.tokens.dims[0];
+    // up to its END the first action is exactly the lone motion; then the second one plays, and ends the motion
+    assert.deepEqual(both.tokens.data.slice(0, n * L), walk.tokens.data);
+    assert.ok(n < both.tokens.dims[0] && both.tokens.dims[0] <= n + endless.maxTokens);
+    assert.equal(both.alignedText, `${WALK} | ${JUMP}`);
+    assert.equal(walk.alignedText, null);
+  }
+});
+
+test('a stated duration holds the action that long', async () => {
+  const L = endless.dims.numLevels, text = `${WALK} for 2 seconds, then jumps twice for 1.2 s`;
+  for (let seed = 0; seed < 4; seed++) {
+    const held = await endless.generate(WALK, { seconds: 2, seed });   // END restarts the walk: 2 s exactly
+    const k = held.tokens.dims[0];
+    const motion = await endless.generate(text, { seed });
+    assert.deepEqual(motion.tokens.data.slice(0, k * L), held.tokens.data);
+    assert.equal(motion.tokens.dims[0], k + endless.tokensFor(1.2));
+    const fixed = await endless.generate(text, { seconds: 6, seed });   // then the jump is held
+    assert.deepEqual(fixed.tokens.data.slice(0, motion.tokens.data.length), motion.tokens.data);
+    assert.equal(fixed.tokens.dims[0], endless.tokensFor(6));
+  }
+  await assert.rejects(endless.generate(`${WALK} for 601 seconds`), /more than 0 and at most 600 seconds/);
+});
+
+test('a list of prompts gets what each gets alone', async () => {
+  const prompts = [WALK, `${JUMP}, then walks forward`, WAVE];
+  const together = await endless.generate(prompts, { seed: 5 });
+  for (const [i, p] of prompts.entries()) {
+    assert.deepEqual((await endless.generate(p, { seed: 5 + i })).tokens, together[i].tokens);
+  }
+  assert.deepEqual(together.map((m) => m.alignedText), [null, `${JUMP} | ${WALK}`, null]);
+});
+
+test('a stream follows a prompt of several actions; one of too many is refused and the stream goes on', async () => {
+  const ds = endless.dims.downsample, s = await endless.stream(WALK, { seed: 2, chunk: 1 });
+  for (let i = 0; i < 3 * ds; i++) await s.next();
+  await s.setPrompt(`${JUMP} and then waves with the right hand`);
+  assert.equal(s.alignedText, `${JUMP} | ${WAVE}`);
+  assert.equal(s.loop.streams[0].parts.length, 2);
+  assert.equal(s.switches.at(-1).alignedText, s.alignedText);
+  for (let i = 0; i < 40 * ds; i++) assert.equal((await s.next()).done, false);   // the last action is held: no end
+  assert.equal(s.loop.streams[0].part, 1);
+  assert.throws(() => s.setPrompt(Array(9).fill(WALK).join(', then ')), /at most 8 actions/);
+  assert.equal((await s.next()).done, false);
+  await s.close();
+  const planned = await endless.stream(`${JUMP} for 1 second, then waves with the right hand`, { seed: 2 });
+  assert.equal(planned.alignedText, `${JUMP} | ${WAVE}`);
+  assert.deepEqual(planned.loop.streams[0].limits, [endless.tokensFor(1), null]);
+  await planned.close();
+});
+
+test('on a bundle of single clips a prompt is one conditioning', async () => {
+  const whole = `${WALK} and then jumps twice`;
+  const m = await clips.generate(whole, { seed: 1 });
+  assert.equal(m.alignedText, null);
+  assert.deepEqual(clips.plan([whole]), [{ actions: [{ text: whole, seconds: null }], limits: [null] }]);
 });

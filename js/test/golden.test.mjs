@@ -1,5 +1,6 @@
 // The golden tokens (tests/golden/toy.json, written by the Python runtime) from the JavaScript runtime: the same
-// toy bundle, prompts, seeds and settings must give exactly the stored tokens. And the controlled streams of
+// toy bundle, prompts, seeds and settings must give exactly the stored tokens (and, for prompts of several actions,
+// the stored aligned texts, and for streams, the tokens their prompt switches landed at). And the controlled streams of
 // tests/golden/toy_control.json: the same requests at the same frames give the same tokens, landing at the same
 // tokens, the same arrivals, and control vectors within float32 rounding of Python's. run.sh builds the toy
 // bundles and passes their folders as MOGO_JS_TOY and MOGO_JS_TOY_CONTROL.
@@ -12,6 +13,7 @@ import { fileURLToPath } from 'node:url';
 import { MotionGenerator } from '../src/generator.js';
 import { SamplingConfig } from '../src/bundle/sampling.js';
 import { compareControlCase, runControlCase, samplingOf } from './control_case.mjs';
+import { runGoldenCase, sameAsGolden } from './golden_case.mjs';
 import { report } from './reference.mjs';
 
 const ROOT = fileURLToPath(new URL('../..', import.meta.url));
@@ -45,16 +47,14 @@ test('the JavaScript runtime gives the golden tokens', async () => {
   const wrong = [];
   for (const [i, c] of GOLDEN.cases.entries()) {
     generators[c.variant] ??= await MotionGenerator.load(dir, { variant: c.variant, threads: 1 });
-    const gen = generators[c.variant];
-    const motions = await gen.generate(c.text, { seconds: c.seconds ?? null, seed: BigInt(c.seed), sampling: sampling(c.sampling) });
-    const L = gen.dims.numLevels;
-    const got = (Array.isArray(motions) ? motions : [motions]).map((m) => Array.from(
-      { length: m.tokens.data.length / L }, (_, t) => Array.from(m.tokens.data.slice(t * L, (t + 1) * L))));
+    const got = await runGoldenCase(generators[c.variant], c, sampling(c.sampling));
     steps += c.tokens.reduce((n, t) => n + t.length, 0);
-    if (JSON.stringify(got) === JSON.stringify(c.tokens)) same += 1;
+    if (sameAsGolden(got, c)) same += 1;
     else wrong.push(i);
   }
-  report(`golden: ${same} of ${GOLDEN.cases.length} cases (${steps} time steps) identical to tests/golden/toy.json`);
+  const planned = GOLDEN.cases.filter((c) => c.aligned).length, streams = GOLDEN.cases.filter((c) => c.stream).length;
+  report(`golden: ${same} of ${GOLDEN.cases.length} cases (${steps} time steps; ${planned} with prompts of several `
+    + `actions, ${streams} of them streams with prompt switches) identical to tests/golden/toy.json`);
   assert.deepEqual(wrong, [], `cases ${wrong.slice(0, 5).join(', ')} differ`);
 });
 

@@ -52,9 +52,10 @@ class StreamContext:
         prompt of several actions (plan.py), played in order, action i for limits[i] tokens, or (None) until the model
         ends it, at most the longest motion the model was trained on; the last one is then held as a prompt of one
         action is: by restarting it at END."""
-        self.parts, self.limits = list(emb), list(limits or [None] * len(emb))
-        if len(self.limits) != len(self.parts):
-            raise ValueError(f"{len(self.parts)} actions but {len(self.limits)} limits")
+        limits = list(limits or [None] * len(emb))
+        if len(limits) != len(emb) or not len(emb):
+            raise ValueError(f"{len(emb)} actions but {len(limits)} limits")
+        self.parts, self.limits = list(emb), limits
         self.part, self.finished_at = 0, None   # the action played; the token count when the last one first ended
         self.starts = [self.count]              # the token each action started at
         self._start_part()

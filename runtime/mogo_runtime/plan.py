@@ -19,6 +19,7 @@ have none, or have a pronoun ("then he jumps").
 from __future__ import annotations
 
 import re
+import string
 from dataclasses import dataclass
 
 MAX_ACTIONS = 8                # as many actions as the training captions name at most
@@ -32,6 +33,9 @@ NUMBER_WORDS = {"a": 1, "an": 1, "one": 1, "two": 2, "three": 3, "four": 4, "fiv
                 "eight": 8, "nine": 9, "ten": 10, "fifteen": 15, "twenty": 20, "thirty": 30, "half a": 0.5}
 UNITS = {"seconds": 1, "second": 1, "secs": 1, "sec": 1, "s": 1, "minutes": 60, "minute": 60, "min": 60}
 
+# Lower case for matching: ASCII letters only, so a match's indices are the same in the text as typed (str.lower
+# changes some texts' length: 'İ' -> 'i̇'), in every runtime.
+_LOWER = str.maketrans(string.ascii_uppercase, string.ascii_lowercase)
 _WORD = r"(?<![a-z]){}(?![a-z])"
 _SEQUENCE = re.compile("|".join(_WORD.format(re.escape(w)) for w in SEQUENCE_WORDS), re.I)
 _CUT = re.compile(r"\s*,?\s*(?:" + _SEQUENCE.pattern + r")\s*,?\s*|\s*(?:[;!?]|\.(?!\d))+\s*|\s*(?:->|=>)\s*", re.I)
@@ -51,7 +55,7 @@ class PlannedAction:
 def plan_actions(text: str) -> list[PlannedAction]:
     """The actions `text` names, in order (one, for a prompt of one action: its text as given, stripped). ValueError
     for more than MAX_ACTIONS actions or a stated duration outside (0, MOST_SECONDS]."""
-    low = text.lower()
+    low = text.translate(_LOWER)
     if not _SEQUENCE.search(low) and not re.search(r"(?:[;!?]|\.(?!\d))\s*\S|->|=>|\bfor\s", low):
         return [PlannedAction(text)]              # one action, as typed: the common case, untouched
     pieces = _CUT.split(text.strip())
@@ -68,20 +72,20 @@ def plan_actions(text: str) -> list[PlannedAction]:
         p, seconds = _duration(p)
         own = _subject(p)
         rest = re.sub(r"^first\s+", "", p[len(own):].lstrip() if own else p, flags=re.I)   # "a person first ..."
-        who = subject if subject and (own is None or own.lower() in PRONOUNS) else own
+        who = subject if subject and (own is None or own.translate(_LOWER) in PRONOUNS) else own
         if rest:
             out.append(PlannedAction(f"{who} {rest}" if who else rest, seconds))
     return out or [PlannedAction(text)]
 
 
 def _subject(part: str) -> str | None:
-    m = _SUBJECT.match(part.lower())
+    m = _SUBJECT.match(part.translate(_LOWER))
     return part[:m.end()] if m else None
 
 
 def _duration(part: str) -> tuple[str, float | None]:
     """A part without its "for N seconds", and N (None without one)."""
-    m = _DURATION.search(part.lower())
+    m = _DURATION.search(part.translate(_LOWER))
     if m is None:
         return part, None
     amount, unit = m.group(1), m.group(2)

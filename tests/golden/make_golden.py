@@ -7,6 +7,11 @@ js/test/golden.test.mjs (Node) and the browser test (web/). Regenerate only when
 The toy bundle (tests/runtime/toy_bundle.py) is built from a seeded numpy generator, so every machine builds the
 same graphs; the file keeps their sha256, so a failing check says whether the bundle or the loop changed.
 
+The prompts of several actions (plan.py: "walks forward and then jumps twice", "... for 2 seconds, then ...") come
+last: generated without and with seconds, in a batch with prompts of one action, and streamed, with prompt switches
+(set_prompt) to prompts of one and of several actions. Where a prompt was split, a case also holds the aligned texts
+(the actions joined by " | "); a stream case, the token each switch landed at.
+
 tests/golden/toy_control.json holds controlled streams on the toy bundle with control (build_toy_bundle(...,
 portable=True, control=True)): a scripted list of requests (walk_to, follow_path, steer with and without facing,
 set_root every token for a while, release), each made before the first frame of its token is read, and for each
@@ -36,6 +41,16 @@ SAMPLINGS = {
     "top_k": {"temperature": 1.2, "top_k": 5},
 }
 TIMELINE = [[PROMPTS[0], 0.0], [PROMPTS[1], 1.0], [PROMPTS[2], 2.2]]
+# prompts of several actions (runtime/mogo_runtime/plan.py), one with a stated duration
+PLANNED = ["a person walks forward and then jumps twice",
+           "a person walks forward for 2 seconds, then jumps twice and then walks in a circle",
+           "a person walks in a circle, then he jumps twice"]   # the toy's circle runs on: it gives way at max_tokens
+PLANNED_BATCH = [PROMPTS[0], PLANNED[0], PROMPTS[2], "a person waves for 1.5 s"]
+# a stream of 6 s: its prompt, then [token, prompt] switches made before the first frame of that token is read
+PLANNED_STREAM = ["a person jumps twice for 1 second, then walks in a circle",
+                  [[6, PLANNED[0]], [16, PROMPTS[1]], [22, PLANNED[1]]]]
+PLANNED_SAMPLINGS = ("greedy", "top_p", "guided")
+RESULTS = ("tokens", "aligned", "landed")     # what a case checks, those of them it holds
 
 
 def cases(variants: list[str]) -> list[dict]:
@@ -51,6 +66,25 @@ def cases(variants: list[str]) -> list[dict]:
                             "seconds": 6.0})
             out.append({"variant": variant, "sampling": sampling, "seed": "7", "text": PROMPTS})
             out.append({"variant": variant, "sampling": sampling, "seed": "3", "text": TIMELINE, "seconds": 4.0})
+    return out
+
+
+def planned_cases(variants: list[str]) -> list[dict]:
+    """Prompts of several actions, after `cases` in the golden file (the torch reference, tests/export/
+    test_golden_torch.py, has no plan and runs `cases` only): each action played until the model ends it or for its
+    stated duration, then the next; generated, and streamed with prompt switches."""
+    out = []
+    for variant in variants:
+        for name in PLANNED_SAMPLINGS:
+            sampling = SAMPLINGS[name]
+            for seed in (0, 1):
+                for prompt in PLANNED:
+                    out.append({"variant": variant, "sampling": sampling, "seed": str(seed), "text": prompt})
+            out.append({"variant": variant, "sampling": sampling, "seed": "2", "text": PLANNED[1], "seconds": 6.0})
+            out.append({"variant": variant, "sampling": sampling, "seed": "2", "text": PLANNED[0], "seconds": 3.0})
+            out.append({"variant": variant, "sampling": sampling, "seed": "7", "text": PLANNED_BATCH})
+            out.append({"variant": variant, "sampling": sampling, "seed": "5", "text": PLANNED_STREAM[0],
+                        "seconds": 6.0, "stream": PLANNED_STREAM[1]})
     return out
 
 
@@ -107,7 +141,11 @@ def run_control_case(generators: dict, case: dict) -> dict:
 
 
 def run_case(generators: dict, case: dict) -> list[list[list[int]]]:
-    """-> one token list (T, L) per motion of the case."""
+    """-> one token list (T, L) per motion of a case of `cases`."""
+    return [m.tokens.tolist() for m in _motions(generators, case)]
+
+
+def _motions(generators: dict, case: dict) -> list:
     from mogo_runtime.bundle.sampling import SamplingConfig
 
     text = case["text"]
@@ -115,8 +153,51 @@ def run_case(generators: dict, case: dict) -> list[list[list[int]]]:
         text = [tuple(item) for item in text]
     motions = generators[case["variant"]].generate(text, seconds=case.get("seconds"), seed=int(case["seed"]),
                                                    sampling=SamplingConfig(**case["sampling"]))
-    motions = motions if isinstance(motions, list) else [motions]
-    return [m.tokens.tolist() for m in motions]
+    return motions if isinstance(motions, list) else [motions]
+
+
+def case_results(generators: dict, case: dict) -> dict:
+    """Any case -> what the golden file holds of it (`results`): {"tokens": one token list (T, L) per motion} and,
+    where a prompt was split into its actions, "aligned": each motion's aligned text; a stream case: the stream's
+    tokens, its aligned text at the start and after each switch, and "landed": the token each switch landed at."""
+    from mogo_runtime.bundle.sampling import SamplingConfig
+
+    if "stream" in case:
+        return run_stream_case(generators[case["variant"]], case, SamplingConfig(**case["sampling"]))
+    motions = _motions(generators, case)
+    out = {"tokens": [m.tokens.tolist() for m in motions]}
+    if any(m.aligned_text is not None for m in motions):
+        out["aligned"] = [m.aligned_text for m in motions]
+    return out
+
+
+def run_stream_case(gen, case: dict, sampling) -> dict:
+    """A stream read frame by frame, each switch made before the first frame of its token is read; its tokens read
+    from the stream's context as they are picked (its ring holds the last few)."""
+    stream = gen.stream(case["text"], seconds=case.get("seconds"), seed=int(case["seed"]), sampling=sampling)
+    context, ds = stream._loop.streams[0], gen.dims.downsample
+    tokens, aligned, landed = [], [stream.aligned_text], []
+    frames = 0
+    while True:
+        if frames % ds == 0:
+            for t, text in case["stream"]:
+                if t == frames // ds:
+                    stream.set_prompt(text)
+                    landed.append(stream.switches[-1][0])
+                    aligned.append(stream.aligned_text)
+        try:
+            next(stream)
+        except StopIteration:
+            break
+        frames += 1
+        assert context.count - len(tokens) <= context.span, "tokens picked faster than the ring holds them"
+        tokens.extend(context.history[t % context.span].tolist() for t in range(len(tokens), context.count))
+    return {"tokens": [tokens], "aligned": aligned, "landed": landed}
+
+
+def results(case: dict) -> dict:
+    """What a golden case holds of what run_case gives."""
+    return {k: case[k] for k in RESULTS if k in case}
 
 
 def build_toy(out: Path, control: bool = False) -> Path:
@@ -141,9 +222,9 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         bundle = build_toy(Path(tmp) / "toy")
         generators = {v: MotionGenerator(bundle, variant=v) for v in ("fp32", "int8")}
-        all_cases = cases(list(generators))
+        all_cases = cases(list(generators)) + planned_cases(list(generators))
         for case in all_cases:
-            case["tokens"] = run_case(generators, case)
+            case.update(case_results(generators, case))
         golden = {"bundle": "tests/runtime/toy_bundle.py: build_toy_bundle(out, Mean.npy of the HumanML3D fixture)",
                   "files": bundle_hashes(bundle), "cases": all_cases}
         bundle = build_toy(Path(tmp) / "toy-control", control=True)

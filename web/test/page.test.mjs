@@ -331,7 +331,8 @@ async function play(page, run, until, check = () => {}) {
 }
 
 // The golden tokens (tests/golden/toy.json) in the browser: the JavaScript runtime on onnxruntime-web (wasm) in
-// the page's own context, every golden case on the toy bundle, exactly the stored tokens.
+// the page's own context, every golden case on the toy bundle (prompts of several actions and streams with prompt
+// switches too, read as Node reads them: js/test/golden_case.mjs), exactly the stored tokens.
 test('the browser gives the golden tokens', { timeout: 300_000 }, async () => {
   assert.ok(reference.bundles.toy, 'the toy bundle is served');
   const golden = JSON.parse(readFileSync(join(ROOT, 'tests/golden/toy.json'), 'utf8'));
@@ -345,20 +346,16 @@ test('the browser gives the golden tokens', { timeout: 300_000 }, async () => {
     ort.env.wasm.wasmPaths = '/web/node_modules/onnxruntime-web/dist/';
     ort.env.wasm.numThreads = 1;
     const { MotionGenerator, urlLoader } = await import('/js/src/index.js');
+    const { runGoldenCase, sameAsGolden } = await import('/js/test/golden_case.mjs');
+    const { samplingOf } = await import('/js/test/control_case.mjs');
     const gens = {};
     const wrong = [];
     let steps = 0;
     for (const [i, c] of cases.entries()) {
       gens[c.variant] ??= await MotionGenerator.load(urlLoader('/test-bundles/toy/'), { ort, variant: c.variant, threads: 1 });
-      const gen = gens[c.variant];
-      const s = c.sampling;
-      const sampling = { temperature: s.temperature, topK: s.top_k ?? null, topP: s.top_p ?? null, guidance: s.guidance ?? 1 };
-      const out = await gen.generate(c.text, { seconds: c.seconds ?? null, seed: BigInt(c.seed), sampling });
-      const L = gen.dims.numLevels;
-      const got = (Array.isArray(out) ? out : [out]).map((m) => Array.from(
-        { length: m.tokens.data.length / L }, (_, t) => Array.from(m.tokens.data.slice(t * L, (t + 1) * L))));
+      const got = await runGoldenCase(gens[c.variant], c, samplingOf(c.sampling));
       steps += c.tokens.reduce((n, t) => n + t.length, 0);
-      if (JSON.stringify(got) !== JSON.stringify(c.tokens)) wrong.push(i);
+      if (!sameAsGolden(got, c)) wrong.push(i);
     }
     return { wrong, steps };
   }, golden.cases);
