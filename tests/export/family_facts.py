@@ -44,3 +44,15 @@ def motion_facts(j):
         reach = j[:, k["wrist"], [0, 2]] - j[:, k["shoulder"], [0, 2]]
         m[f"reach_{side}"] = (reach * fwd).sum(-1).max()
     return m
+
+
+def rises(x, hi, lo):
+    """How many times x rises above `hi`, counted again only after it falls below `lo` (hysteresis: sway about one
+    level is not a repetition). A signal that starts above `hi` counts that as its first rise."""
+    n, up = 0, False
+    for v in x:
+        if not up and v > hi:
+            n, up = n + 1, True
+        elif up and v < lo:
+            up = False
+    return n

@@ -1,5 +1,6 @@
 """The procedural HumanML3D-layout dataset: determinism, layout, people-like motion, captions, long
 sequences, path sequences, and every family (and path segment) doing what its captions say."""
+import itertools
 import json
 import re
 
@@ -23,16 +24,17 @@ PARENTS = np.array(HUMANML3D.parents)
 BONES = np.arange(1, HUMANML3D.num_joints)
 
 
+# The fewest clips whose singles cover every family (every 5th clip is a two-action sequence); then N // 10 long
+# sequences and N // 10 path sequences follow them
+N = next(n for n in itertools.count(1) if n - n // C.SEQUENCE_EVERY >= len(FAMILIES))
+SHORT = [f"{i:06d}" for i in range(N)]
+LONG = [f"{i:06d}" for i in range(N, N + N // 10)]
+PATH = [f"{i:06d}" for i in range(N + N // 10, N + 2 * (N // 10))]
+
+
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    # 27 clips: every 5th is a sequence, so the first 21 singles cover all 21 families; then 27 // 10 = 2
-    # long sequences (ids 000027, 000028) and 2 path sequences (000029, 000030)
-    return P.build_dataset(tmp_path_factory.mktemp("proc") / "ds", num_clips=27, seed=7, progress=False, workers=2)
-
-
-SHORT = [f"{i:06d}" for i in range(27)]
-LONG = ["000027", "000028"]
-PATH = ["000029", "000030"]
+    return P.build_dataset(tmp_path_factory.mktemp("proc") / "ds", num_clips=N, seed=7, progress=False, workers=2)
 
 
 @pytest.fixture(scope="module")
@@ -92,13 +94,13 @@ def test_every_family_present_and_labelled(built):
     singles = {v for v in labels.values() if not v.startswith("seq:")}
     assert singles == set(FAMILIES)
     seqs = [v for v in labels.values() if v.startswith("seq:")]
-    assert len(seqs) == 5
+    assert len(seqs) == N // C.SEQUENCE_EVERY
     for s in seqs:
         first, second = s[4:].split("+")
         assert first in FAMILIES and second in FAMILIES and first != second
     assert info["label_counts"] == {k: list(labels.values()).count(k) for k in set(labels.values())}
-    assert info["families"] == FAMILIES and info["seed"] == 7 and info["num_clips"] == 27
-    assert info["num_long_sequences"] == 2 and info["num_path_sequences"] == 2
+    assert info["families"] == FAMILIES and info["seed"] == 7 and info["num_clips"] == N
+    assert info["num_long_sequences"] == len(LONG) and info["num_path_sequences"] == len(PATH)
     assert sorted(info["segments"]) == LONG + PATH
     assert sum(info["path_family_counts"].values()) == sum(len(info["segments"][i]) for i in PATH)
     assert info["fps"] == 20.0 and info["skeleton"]["name"] == "humanml3d" and info["feature_dim"] == 263
@@ -120,9 +122,13 @@ def test_layout_shapes_splits_and_stats(built):
         assert abs(j[..., 1].min()) < 1e-6  # HumanML3D puts the lowest joint of the clip on the floor
     splits = {s: (built / f"{s}.txt").read_text().split() for s in ("train", "val", "test")}
     assert sorted(sum(splits.values(), [])) == ids
-    # 80/15/5 of 27, rounded, and of the 2 long and 2 path sequences (split apart from them: all in train)
-    assert [len(set(v) - set(LONG + PATH)) for v in splits.values()] == [22, 4, 1]
-    assert set(LONG + PATH) <= set(splits["train"])
+    # 80/15/5 of the short clips, rounded (val first), and of the long and path sequences, split apart from them
+    val = round(0.15 * N)
+    assert [len(set(v) - set(LONG + PATH)) for v in splits.values()] == [N - val - (N - round(0.8 * N) - val), val,
+                                                                          N - round(0.8 * N) - val]
+    for group in (LONG, PATH):
+        assert sorted(set(group) & set(sum(splits.values(), []))) == group
+        assert len(set(group) & set(splits["train"])) >= len(group) - 2 * (len(group) >= 3)
     mean, std = np.load(built / "Mean.npy"), np.load(built / "Std.npy")
     train = np.concatenate([np.load(built / "new_joint_vecs" / f"{i}.npy") for i in splits["train"]
                             if i in SHORT]).astype(np.float64)  # the statistics leave long and path sequences out
@@ -142,7 +148,7 @@ def test_joints_file_is_what_the_features_describe(built):
         j = np.load(built / "new_joints" / p.name.replace(".txt", ".npy"))
         np.testing.assert_allclose(recover_from_ric(f, 22), j[:-1], atol=1e-4)
         checked += 1
-    assert checked == 31 and turning >= 2
+    assert checked == len(SHORT + LONG + PATH) and turning >= 2
 
 
 def test_bone_lengths_are_the_skeletons(clips, built):
@@ -210,6 +216,35 @@ def test_no_flips_and_smooth(clips, humanml3d_fixture):
         assert acc[:, 0].max() < (100 if OFF_FEET.search(name) else 50), name  # take-off, landing
         pelvis.append(acc[:, 0])
     assert np.percentile(np.concatenate(pelvis), 95) < 20
+
+
+def test_every_family_moves_as_a_person_can(clips, humanml3d_fixture):
+    """Speeds within human ranges, measured beside the real clip's, and no hand through the trunk or head."""
+    def facts(j):
+        v = np.linalg.norm(np.diff(j, axis=0), axis=-1) * FPS               # m/s per joint
+        trunk = [0, 3, 6, 9, 12, 15]                                        # pelvis, spine, neck, head
+        clear = np.linalg.norm(j[:, [20, 21], None] - j[:, None, trunk], axis=-1).min()
+        return v.max(), v[:, [20, 21]].max(), v[:, 0].max(), clear
+    real = facts(np.load(humanml3d_fixture / "new_joints" / "012314.npy"))
+    # Real clip 012314: fastest joint and wrist 10.0 m/s, pelvis 2.7 m/s; a wrist 0.24 m from the trunk at the closest.
+    assert real[0] > 9 and real[2] > 2.5
+    table = {}
+    for name, j in clips:
+        if name.startswith("seq:"):
+            continue
+        row = np.array(facts(j))
+        table[name] = np.maximum(table.get(name, row), row) if name in table else row
+        table[name][3] = min(table[name][3], row[3])
+    print("\nfamily                  joint  wrist pelvis  clear   (max speeds m/s, closest wrist to trunk m; 3 clips)")
+    print(f"{'HumanML3D 012314':22s}" + "".join(f"{v:7.2f}" for v in real))
+    for name, row in table.items():
+        print(f"{name:22s}" + "".join(f"{v:7.2f}" for v in row))
+    # A sprinter's foot swings at ~20 m/s and a pitcher's wrist at ~20; people walk and run below 8 m/s (the fastest
+    # sprint is ~10); a hand passing through the body comes within a few cm of a trunk joint.
+    broken = [f"{n}: {what} ({v:.2f})" for n, r in table.items() for what, v, ok in (
+        ("joint speed < 15 m/s", r[0], r[0] < 15), ("pelvis speed < 8 m/s", r[2], r[2] < 8),
+        ("wrists > 8 cm from the trunk and head", r[3], r[3] > 0.08)) if not ok]
+    assert not broken, "\n".join(broken)
 
 
 def test_ranges_of_motion(clips):
@@ -659,7 +694,7 @@ def test_path_sequences_cover_speeds_and_turning_rates():
 def test_path_sequences_are_timelines(built):
     """timelines.py reads a path sequence as it reads a long one: whole, one segment per move."""
     info = json.loads((built / "dataset.json").read_text())
-    lines = {t.clip_id: t for t in read_timelines(built, "train")}
+    lines = {t.clip_id: t for split in ("train", "val", "test") for t in read_timelines(built, split)}
     for i in PATH:
         segments = info["segments"][i]
         assert [(s.first, s.stop) for s in lines[i].segments] == [(g["start"], min(g["end"], len(lines[i].features)))

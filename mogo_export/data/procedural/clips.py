@@ -58,6 +58,7 @@ def blend(a: Pose, b: Pose, frames: int = BLEND_FRAMES) -> Pose:
     out.air_speed = np.concatenate([a.air_speed[:a.T - n], np.maximum(a.air_speed[a.T - n:], b.air_speed[:n]),
                                     b.air_speed[n:]])
     out.support = np.concatenate([a.support[:a.T - n], a.support[a.T - n:] | b.support[:n], b.support[n:]])
+    out.resting = np.concatenate([a.resting[:a.T - n], a.resting[a.T - n:] | b.resting[:n], b.resting[n:]])
     return out
 
 

@@ -1,6 +1,6 @@
-"""Putting a posed body on the floor: `solve_ground` places the root so heels and toes that land on the
-floor stay where they landed (and the lowest one is on y=0, or the body follows a ballistic arc in the
-air), and `lock_feet` takes up with leg IK what the pose leaves over. `pose_to_joints` runs the whole
+"""Putting a posed body on the floor: `solve_ground` places the root so heels and toes (and the knees, hands,
+back... an action lets rest on the floor, pose.Pose.rest_on) that land on the floor stay where they landed
+(and the lowest one is on y=0, or the body follows a ballistic arc in the air), and `lock_feet` takes up with leg IK what the pose leaves over. `pose_to_joints` runs the whole
 chain from a Pose's angles to world joint positions.
 
 Separate from kinematics.py because this is where the clip's timeline matters (pins held across frames,
@@ -13,7 +13,7 @@ import numpy as np
 from mogo_runtime.kinematics.skeleton import HUMANML3D
 
 from .curves import ease
-from .kinematics import contact_points, forward_kinematics, two_bone_ik
+from .kinematics import body_points, contact_points, forward_kinematics, two_bone_ik
 from .pose import FPS, GRAVITY, Pose
 
 
@@ -54,9 +54,11 @@ def _leap_velocity(xz: list, a: int, b: int, travel: np.ndarray) -> tuple[float,
 
 
 def solve_ground(points: np.ndarray, support: np.ndarray, flight: np.ndarray, leap: np.ndarray,
-                 air_speed: np.ndarray, yaw_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 air_speed: np.ndarray, yaw_deg: np.ndarray,
+                 resting: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Root translation (T, 3), per-foot floor corrections (T, 2, 3) and whether each foot is pinned
-    (T, 2), for contact points (T, 4, 3) given relative to the root (heel, toe of left then right foot).
+    (T, 2), for contact points (T, 4 + K, 3) given relative to the root (heel, toe of left then right foot,
+    then the K body parts of kinematics.body_points, which `resting` (T, K) allows on the floor).
 
     Every heel or toe that comes down on the floor (on a foot the action marks as support, or grazing
     it) is pinned where it lands, and stays pinned until it rises above TOUCH. Each frame the root is
@@ -68,18 +70,25 @@ def solve_ground(points: np.ndarray, support: np.ndarray, flight: np.ndarray, le
     off both feet) sets the toes down where they took off, moved by the jump's `air_speed` (m/s along the
     heading) over its airborne frames: the toes do what the action says, whatever the legs' swing
     would carry the body to (it carried in-place jumps 1.6 m forward a jump).
+
+    A body part allowed to rest on the floor (a knee, a hand, the back) is a contact like a heel or toe of a
+    supporting foot: the lowest contact is on the floor, and one that comes down is pinned until it lifts,
+    so it does not slide; what it misses its pin by is left (no IK moves it), the least squares keep it
+    small. Without body parts (K = 0) this is the feet-only solve of every original family, unchanged.
     """
     T = len(points)
     root = np.zeros((T, 3))
     root[:, 1] = _root_heights(points, flight)
     xz = points[..., [0, 2]].tolist()                       # (T, 4, 2) as lists: the loop is per frame
     height = (points[..., 1] + root[:, 1:2]).tolist()
-    sup = support.tolist()
+    P = points.shape[1]
+    sup = support[:, [0, 0, 1, 1]] if resting is None else np.concatenate([support[:, [0, 0, 1, 1]], resting], 1)
+    sup = sup.tolist()                                      # per point: may it carry the body
     air = flight.tolist()
     yaw = np.radians(yaw_deg)
     air_vel = np.stack([np.sin(yaw), np.cos(yaw)], -1) * (air_speed / FPS)[:, None]  # m/frame
     leaps = {a: b for a, b in _runs(leap & flight) if 0 < a and b < T}  # take-off -> landing frame
-    pin = [None] * 4                                        # [x, z, frames pinned] per point
+    pin = [None] * P                                        # [x, z, frames pinned] per point
     corr = np.zeros((T, 2, 3))
     pinned = np.zeros((T, 2), dtype=bool)
     rx = rz = vx = vz = 0.0
@@ -88,15 +97,15 @@ def solve_ground(points: np.ndarray, support: np.ndarray, flight: np.ndarray, le
             b = leaps[t]
             vx, vz = _leap_velocity(xz, t, b, air_vel[t:b].sum(axis=0))
         h = height[t]
-        for p in range(4):
+        for p in range(P):
             if pin[p] is not None and (h[p] > TOUCH or air[t]):
                 pin[p] = None
         # root from the points pinned so far; weights grow over a pin's first frames and shrink as it lifts
         sw = sx = sz = 0.0
-        for p in range(4):
+        for p in range(P):
             if pin[p] is not None:
                 w = min(1.0, (pin[p][2] + 1) / 4.0) * max(0.05, 1.0 - h[p] / TOUCH)
-                if not sup[t][p // 2]:  # a foot the action is lifting is held down, not leant on
+                if not sup[t][p]:  # a foot the action is lifting is held down, not leant on
                     w *= 0.02
                 sw += w
                 sx += w * (pin[p][0] - xz[t][p][0])
@@ -112,8 +121,8 @@ def solve_ground(points: np.ndarray, support: np.ndarray, flight: np.ndarray, le
         rx, rz = nx, nz
         root[t, 0], root[t, 2] = rx, rz
         # pin what just came down, where it is now
-        for p in range(4):
-            if pin[p] is None and not air[t] and (h[p] < GRAZE or (sup[t][p // 2] and h[p] < LAND)):
+        for p in range(P):
+            if pin[p] is None and not air[t] and (h[p] < GRAZE or (sup[t][p] and h[p] < LAND)):
                 pin[p] = [rx + xz[t][p][0], rz + xz[t][p][1], 0]
             elif pin[p] is not None:
                 pin[p][2] += 1
@@ -160,6 +169,11 @@ def lock_feet(joints: np.ndarray, corr: np.ndarray, pinned: np.ndarray, skeleton
 def pose_to_joints(pose: Pose) -> np.ndarray:
     """(T, 22, 3) world joint positions (metres, y up) for a Pose."""
     rel, glob = forward_kinematics(pose.angles)
-    root, corr, pinned = solve_ground(contact_points(rel, glob), pose.support, pose.flight, pose.leap,
-                                      pose.air_speed, pose.angles[:, 0, 1])
+    points, resting = contact_points(rel, glob), pose.resting
+    if resting.any():  # body parts that may rest on the floor join the feet's contacts
+        points = np.concatenate([points, body_points(rel, resting)], axis=1)
+    else:
+        resting = None
+    root, corr, pinned = solve_ground(points, pose.support, pose.flight, pose.leap, pose.air_speed,
+                                      pose.angles[:, 0, 1], resting)
     return lock_feet(rel + root[:, None, :], corr, pinned)

@@ -1,6 +1,7 @@
 """Forward kinematics on the HUMANML3D skeleton: the standing posture the joint angles are measured from,
 local rotations from a Pose's angles, joint positions and global rotations, the feet's heel and toe
-contact points, and a two-bone leg IK solver.
+contact points (and those of the other body parts an action may rest on the floor), and a two-bone leg IK
+solver.
 
 Everything here is geometry relative to the root at the origin; where the body stands on the floor is
 grounding.py's job.
@@ -10,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from mogo_runtime.kinematics.skeleton import HUMANML3D
+
+from .pose import CONTACTS
 
 
 def _rot(axis: int, deg: np.ndarray) -> np.ndarray:
@@ -106,6 +109,19 @@ def contact_points(pos: np.ndarray, glob: np.ndarray, skeleton=HUMANML3D) -> np.
         pts.append(pos[:, ankle] + glob[:, ankle] @ HEELS[ankle])
         pts.append(pos[:, toe])
     return np.stack(pts, axis=1)
+
+
+OFF_FLOOR = 1e3  # m: where a body part that may not rest on the floor is put as a contact (never the lowest)
+
+
+def body_points(pos: np.ndarray, resting: np.ndarray) -> np.ndarray:
+    """(T, K, 3): the surface point below each body part of pose.CONTACTS (the joint lowered by its
+    thickness) where `resting` (T, K) allows it on the floor, and OFF_FLOOR above the root elsewhere."""
+    joints = [j for j, _ in CONTACTS.values()]
+    pts = pos[:, joints].copy()
+    pts[..., 1] -= np.array([r for _, r in CONTACTS.values()])
+    pts[..., 1] = np.where(resting, pts[..., 1], OFF_FLOOR)
+    return pts
 
 
 def two_bone_ik(hip: np.ndarray, knee: np.ndarray, target: np.ndarray, l1: float, l2: float,

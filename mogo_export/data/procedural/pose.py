@@ -1,7 +1,8 @@
 """Joint-angle tracks of one clip (`Pose`), the angle conventions they use, and the clip timeline.
 
 Every action family builds a Pose by adding layers of local joint angles (`leg`, `arm`, `spine`, ...),
-plus which frames are airborne and which feet may carry the body. No family ever places a joint in
+plus which frames are airborne, which feet may carry the body and, for actions that go down to the floor,
+which other body parts may rest on it (`rest_on`, CONTACTS). No family ever places a joint in
 space: turning angles into joint positions with the feet planted on the floor is done once for all of
 them (kinematics.py, grounding.py), so a new family only has to speak this small vocabulary.
 
@@ -27,6 +28,18 @@ SIDES = {  # per side: joint indices, and the sign that mirrors abduction / twis
 }
 OTHER = {"left": "right", "right": "left"}
 
+# Body parts besides the feet that an action may rest on the floor (kneeling, sitting, lying, on all fours):
+# name -> (joint, metres from the joint down to the body's surface below it, the thickness of flesh
+# and bone a joint of HumanML3D's skeleton is inside of).
+CONTACTS = {
+    "pelvis": (PELVIS, 0.09), "lower_back": (SPINE1, 0.10), "mid_back": (SPINE2, 0.10),
+    "upper_back": (SPINE3, 0.10), "head": (15, 0.09),
+    "left_hip": (1, 0.08), "right_hip": (2, 0.08), "left_knee": (4, 0.05), "right_knee": (5, 0.05),
+    "left_shoulder": (16, 0.06), "right_shoulder": (17, 0.06), "left_elbow": (18, 0.04),
+    "right_elbow": (19, 0.04), "left_hand": (20, 0.03), "right_hand": (21, 0.03),
+}
+_CONTACT_INDEX = {name: i for i, name in enumerate(CONTACTS)}
+
 
 class Pose:
     """Joint-angle tracks of one clip, built by adding layers.
@@ -47,6 +60,18 @@ class Pose:
         # they left the floor with)
         self.leap = np.zeros(num_frames, dtype=bool)
         self.air_speed = np.zeros(num_frames)           # m/s forward (body frame) while leaping
+        # (T, len(CONTACTS)): which body parts besides the feet (CONTACTS order) may rest on the floor and
+        # carry the body in each frame (`rest_on`); none by default, as in every original family
+        self.resting = np.zeros((num_frames, len(CONTACTS)), dtype=bool)
+
+    def rest_on(self, parts, on=True) -> None:
+        """Let body `parts` (names in CONTACTS) rest on the floor, and carry the body, where `on` (a bool, or
+        per frame: bools or 0..1, read as > 0.5) holds: grounding then puts the lowest of the feet and these
+        parts on the floor, and pins each one that comes down there as it pins the feet. Parts not allowed
+        are never floor contacts (the default, and the original families': no part but the feet ever is)."""
+        on = np.broadcast_to(np.asarray(on, dtype=np.float64) > 0.5, (self.T,))
+        for name in [parts] if isinstance(parts, str) else parts:
+            self.resting[:, _CONTACT_INDEX[name]] = on
 
     def _add(self, j: int, axis: int, value) -> None:
         self.angles[:, j, axis] += np.broadcast_to(np.asarray(value, dtype=np.float64), (self.T,))

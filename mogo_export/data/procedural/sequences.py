@@ -31,7 +31,7 @@ def hold(pose: Pose, before: int, after: int) -> Pose:
     grounded: every action starts and ends standing, or seated)."""
     idx = np.concatenate([np.zeros(before, int), np.arange(pose.T), np.full(after, pose.T - 1)])
     out = Pose(len(idx))
-    for name in ("angles", "flight", "leap", "air_speed", "support"):
+    for name in ("angles", "flight", "leap", "air_speed", "support", "resting"):
         setattr(out, name, getattr(pose, name)[idx])
     return out
 
