@@ -146,6 +146,126 @@ def measure(family, p, j, raw):
                       for s in WRIST)
             facts["hug"] = hug
             out.append((f"hugs the knees: each wrist < 0.15 m from a shin ({hug:.2f})", hug < 0.15))
+    if family == "collapse_holding_leg":
+        s, o = p["side"], OTHER[p["side"]]
+        shin = lambda f, w: _to_segment(raw[f, w], raw[f, KNEE[s]], raw[f, ANKLE[s]])  # noqa: E731
+        # first it stands on the good leg holding the hurt one up (its ankle ~0.3 m up), hands on that shin
+        up = np.flatnonzero((raw[:, ANKLE[s], 1] > 0.2) & (raw[:, 0, 1] > STAND_Y - 0.1))
+        facts["held_up_s"] = len(up) / FPS
+        out.append((f"holds the {s} leg up standing on the other (> 0.3 s)", len(up) / FPS > 0.3
+                    and raw[up][:, ANKLE[o], 1].max() < 0.08))
+        grip = max(min(shin(f, w) for f in up) for w in WRIST.values()) if len(up) else np.inf
+        facts["grip"] = grip
+        out.append((f"both hands on the {s} shin while it is up ({grip:.2f} m)", grip < 0.15))
+        # collapses: ends lying on the back on the floor (the pelvis and upper back ~10 cm up: their thickness),
+        # the head raised a little (the neck < 0.25 m up), not standing again
+        out.append(("ends on the ground: the pelvis < 0.13 m up", raw[-1, 0, 1] < 0.13))
+        out.append(("lying on the back: the upper back < 0.15 m, the neck < 0.25 m up",
+                    raw[-1, 9, 1] < 0.15 and raw[-1, 12, 1] < 0.25))
+        # ... the hurt leg held up off the floor, the hands still on its shin; the other foot flat on the floor
+        hold = max(shin(-1, w) for w in WRIST.values())
+        facts["end_grip"] = hold
+        out.append((f"still holding the {s} leg, off the floor ({hold:.2f} m)", hold < 0.15
+                    and raw[-1, ANKLE[s], 1] > 0.25 and raw[-1, ANKLE[o], 1] < 0.08))
+        # what carries the body stays put: the good foot never moves, the seat does not slide once down
+        facts["foot_slide"] = _still(raw, TOE[o], slice(0, T))
+        out.append((f"the {o} foot stays where it stands ({facts['foot_slide']:.3f} m)", facts["foot_slide"] < 0.05))
+        sat = np.flatnonzero(raw[:, 0, 1] < 0.1)
+        slide = _still(raw, 0, slice(sat[0], T)) if len(sat) else np.inf
+        facts["seat_slide"] = slide
+        out.append((f"the seat does not slide once down ({slide:.3f} m)", slide < 0.03))
+    if family in ("fall_and_get_up", "lie_down_and_get_up"):
+        # both end standing where they stood up, at standing height (STAND_Y: the neutral pose's pelvis)
+        facts["end_pelvis_err"] = abs(float(raw[-1, 0, 1]) - STAND_Y)
+        out.append((f"ends standing at standing height ({raw[-1, 0, 1]:.2f} m)", facts["end_pelvis_err"] < 0.03
+                    and neck_up > 0.45 and raw[-1, [7, 8], 1].max() < 0.08))
+        out.append(("goes down low once (one spell > 0.3 m down)", len(_runs(low)) == 1))
+        # how fast the body gets down: from 0.1 m below standing to the seat on the floor (pelvis < 0.13 m)
+        start = np.flatnonzero(raw[:, 0, 1] < STAND_Y - 0.1)[0]
+        floor = np.flatnonzero(raw[:, 0, 1] < 0.13)
+        facts["down_s"] = (floor[0] - start) / FPS if len(floor) else np.inf
+        fwd = (raw[:, 0, [0, 2]] - raw[0, 0, [0, 2]]) @ fwd_ax     # the pelvis along the start facing
+        # smooth: no joint accelerates past 200 m/s^2 (kicks and landings reach ~160), the pelvis past 100
+        # (the generic bounds for families that land hard: a seat or knees hitting the floor)
+        acc = np.linalg.norm(np.diff(raw, 2, axis=0), axis=-1) * FPS * FPS
+        facts["acc"] = float(acc.max())
+        out.append((f"smooth: joint acc {acc.max():.0f}, pelvis {acc[:, 0].max():.0f} m/s^2",
+                    acc.max() < 200 and acc[:, 0].max() < 100))
+    if family == "fall_and_get_up" and p["way"] == "backward":
+        # a fall, not a sit: from a buckle to the seat on the floor in < 1 s (buckle + drop: 0.75-0.9 s)
+        out.append((f"falls fast: standing to the floor in < 1 s ({facts['down_s']:.2f})", facts["down_s"] < 1.0))
+        # lands behind the feet: the seat comes down > 0.4 m behind where the pelvis stood (a thigh and shin)
+        out.append((f"falls backward ({fwd.min():.2f} m)", fwd.min() < -0.4))
+        # lies on the back: the pelvis and upper back on the floor (joints ~10 cm up: their thickness), the head
+        # down too, for the sampled lie (plus part of the roll onto the back and of the sit-up: < 1 s more)
+        lying = (raw[:, 0, 1] < 0.13) & (raw[:, 9, 1] < 0.15) & (raw[:, 15, 1] < 0.15)
+        facts["lie_s"] = lying.sum() / FPS
+        out.append((f"lies on the back ~{p['lie']} s ({facts['lie_s']:.2f})",
+                    0.9 * p["lie"] < facts["lie_s"] < p["lie"] + 1.0 and len(_runs(lying)) == 1))
+        # ... knees up, both feet flat on the floor; the hands down on the floor beside the body
+        mid = np.flatnonzero(lying)[len(np.flatnonzero(lying)) // 2]
+        out.append(("lying with the knees up, feet flat", raw[mid, [4, 5], 1].min() > 0.25
+                    and raw[mid, [7, 8], 1].max() < 0.08))
+        out.append(("hands on the floor beside the body", raw[mid, [20, 21], 1].max() < 0.08))
+        # the feet never move (they carry the fall and the getting up); the seat does not slide once down
+        facts["foot_slide"] = max(_still(raw, TOE[s], slice(0, T)) for s in TOE)
+        out.append((f"the feet stay put ({facts['foot_slide']:.3f} m)", facts["foot_slide"] < 0.05))
+        sat = np.flatnonzero(raw[:, 0, 1] < 0.12)
+        facts["seat_slide"] = _still(raw, 0, slice(sat[0], sat[-1] + 1)) if len(sat) else np.inf
+        out.append((f"the seat does not slide ({facts['seat_slide']:.3f} m)", facts["seat_slide"] < 0.03))
+        out.append(("gets up where it fell: ends < 0.15 m from the start", m["dist"] < 0.15))
+    if family == "fall_and_get_up" and p["way"] == "forward":
+        # onto the knees: both knee joints ~5 cm up (their thickness) ...
+        knees = raw[:, [4, 5], 1].max(axis=1) < 0.08
+        # ... and the hands: the wrists (a hand's thickness up) on the floor, > 0.2 m ahead of the knees, the
+        # trunk near level (the neck < 0.25 m above the pelvis), for the sampled stay (and the catch / push)
+        ahead = np.min([(raw[:, WRIST[s], [0, 2]] - raw[:, KNEE[s], [0, 2]]) @ fwd_ax for s in WRIST], axis=0)
+        fours = knees & (raw[:, [20, 21], 1].max(axis=1) < 0.08) & (ahead > 0.2) & (raw[:, 12, 1] - raw[:, 0, 1] < 0.25)
+        facts["fours_s"] = fours.sum() / FPS
+        out.append((f"on the hands and knees ~{p['stay']} s ({facts['fours_s']:.2f})",
+                    0.8 * p["stay"] < facts["fours_s"] < p["stay"] + 0.6 and len(_runs(fours)) == 1))
+        # it falls: standing to both knees on the floor in < 0.8 s (buckle + drop: 0.44-0.56 s)
+        first = np.flatnonzero(knees)[0]
+        facts["down_s"] = (first - start) / FPS
+        out.append((f"falls fast: onto the knees in < 0.8 s ({facts['down_s']:.2f})", facts["down_s"] < 0.8))
+        # what carries the body stays put: the hands while down; the knee that stays down to the end (the one
+        # it rises from) all the while it is down; the other knee until the hands lift (bringing that foot
+        # forward, the knee swings up along an arc that starts level with the floor: it drags ~5 cm then)
+        runs = {j: max(_runs(raw[:, j, 1] < 0.06), key=lambda r: r[1] - r[0]) for j in (4, 5)}
+        last, other = sorted(runs, key=lambda j: runs[j][1], reverse=True)
+        hands_up = np.flatnonzero(fours)[-1] + 1 if fours.any() else T
+        facts["knee_slide"] = max(_still(raw, last, slice(*runs[last])),
+                                  _still(raw, other, slice(runs[other][0], min(runs[other][1], hands_up))))
+        # (on the floor: within 1 cm of it, where grounding pins a part: the knee joint 5 cm, the wrist 3 cm up)
+        facts["hand_slide"] = max(_still(raw, j, slice(a, b)) for j in (20, 21) for a, b in
+                                  _runs(raw[:, j, 1] < 0.04))
+        out.append((f"knees and hands do not slide ({facts['knee_slide']:.3f}, {facts['hand_slide']:.3f} m)",
+                    facts["knee_slide"] < 0.03 and facts["hand_slide"] < 0.03))
+        # it falls forward and gets up there: the knees land a shin ahead of the feet (~0.4 m), and the feet
+        # step up to the front foot, which comes down ahead of the knees: 0.6-1.0 m ahead in all
+        out.append((f"falls forward and stands up ahead ({m['fwd']:.2f} m)", 0.5 < m["fwd"] < 1.1
+                    and abs(m["left"]) < 0.15))
+    if family == "lie_down_and_get_up":
+        # lying down, not falling: from standing to the seat on the floor takes > 1 s (a controlled squat and
+        # sit: down + sit 1.26-1.9 s)
+        out.append((f"gets down slowly: > 1 s to the floor ({facts['down_s']:.2f})", facts["down_s"] > 1.0))
+        # lies flat on the back: pelvis, upper back and head on the floor, both legs stretched out along it
+        # (ankles > 0.6 m ahead of the pelvis, knees < 0.2 m up), for the sampled stay
+        legs_out = np.stack([((raw[:, ANKLE[s], [0, 2]] - raw[:, 0, [0, 2]]) @ fwd_ax) for s in ANKLE]).min(axis=0)
+        flat = ((raw[:, 0, 1] < 0.13) & (raw[:, 9, 1] < 0.15) & (raw[:, 15, 1] < 0.15) & (legs_out > 0.6)
+                & (raw[:, [4, 5], 1].max(axis=1) < 0.2))
+        facts["flat_s"] = flat.sum() / FPS
+        out.append((f"lies flat, legs out, ~{p['stay']} s ({facts['flat_s']:.2f})",
+                    0.9 * p["stay"] < facts["flat_s"] < p["stay"] + 0.8 and len(_runs(flat)) == 1))
+        mid = np.flatnonzero(flat)[len(np.flatnonzero(flat)) // 2] if flat.any() else 0
+        out.append(("arms at the sides, hands on the floor", raw[mid, [20, 21], 1].max() < 0.08))
+        # nothing slides: the seat while it is down, and the feet end where they stood (it stands up in place)
+        sat = np.flatnonzero(raw[:, 0, 1] < 0.12)
+        facts["seat_slide"] = _still(raw, 0, slice(sat[0], sat[-1] + 1)) if len(sat) else np.inf
+        out.append((f"the seat does not slide ({facts['seat_slide']:.3f} m)", facts["seat_slide"] < 0.03))
+        facts["foot_moved"] = max(float(np.linalg.norm(raw[-1, TOE[s], [0, 2]] - raw[0, TOE[s], [0, 2]])) for s in TOE)
+        out.append((f"stands up where it stood ({facts['foot_moved']:.3f} m)", facts["foot_moved"] < 0.05))
+        out.append(("lies down behind its feet (> 0.4 m back)", fwd.min() < -0.4))
     return out, facts
 
 
@@ -160,7 +280,7 @@ def test_every_transition_does_what_its_captions_say():
             out, facts = measure(name, p, through_features(clip.joints), clip.joints)
             broken += [f"{name} seed {s} {p}: not {what}" for what, ok in out if not ok]
             rows.append(facts)
-        keys = list(rows[0])
+        keys = list(dict.fromkeys(k for r in rows for k in r))
         table[name] = {k: float(np.median([r[k] for r in rows if k in r])) for k in keys}
     print("\nfamily          " + " ".join(f"{k:>10s}" for k in ("dist", "turn", "drop", "end_drop", "low_s",
                                                                     "end_pelvis")) + "   (medians of 8 clips)")
@@ -173,15 +293,32 @@ def test_every_transition_does_what_its_captions_say():
 
 
 def test_registered_and_last_only():
-    assert NAMES == ["crouch", "kneel_down", "sit_on_ground"]
-    assert set(transitions.LAST_ONLY) == {"kneel_down", "sit_on_ground"} <= families.LAST_ONLY
+    assert NAMES == ["crouch", "kneel_down", "sit_on_ground", "collapse_holding_leg", "fall_and_get_up",
+                     "lie_down_and_get_up"]
+    assert set(transitions.LAST_ONLY) == {"kneel_down", "sit_on_ground", "collapse_holding_leg"} <= families.LAST_ONLY
     # the families that end on the floor never start a sequence: what ends a clip ends it low
     for name in transitions.LAST_ONLY:
         a = families.FAMILIES[name](np.random.default_rng(0))
         assert pose_to_joints(a.pose)[-1, 0, 1] < 0.5, name
 
 
-@pytest.mark.parametrize("name", ["kneel_down", "sit_on_ground"])
+def test_falls_both_ways_and_what_ends_standing_starts_a_sequence():
+    """fall_and_get_up samples both ways among the 8 clips its test measures; the families that end standing
+    (not LAST_ONLY) may start a two-action clip, and the next action goes on from their feet."""
+    fi = FAMILIES.index("fall_and_get_up")
+    ways = {C.generate_clip(("fall_and_get_up",), np.random.default_rng([31, fi, s])).segments[0].params["way"]
+            for s in range(8)}
+    assert ways == {"backward", "forward"}
+    for name in ("fall_and_get_up", "lie_down_and_get_up"):
+        assert name not in families.LAST_ONLY
+        for s in range(3):
+            clip = C.generate_clip((name, "walk_forward"), np.random.default_rng([33, s]))
+            j = clip.joints
+            assert j[..., 1].min() > -0.01 and clip.segments[0].family == name
+            assert abs(j[clip.segments[1].start:, 0, 1] - STAND_Y).max() < 0.1   # walking on from standing
+
+
+@pytest.mark.parametrize("name", ["kneel_down", "sit_on_ground", "collapse_holding_leg"])
 def test_a_body_at_rest_on_the_floor_through_a_sequence(name):
     """The parts allowed to rest on the floor (Pose.resting) travel with the pose through a cross-fade
     (clips.blend ORs them like the feet's support) and a hold (sequences.hold), so a sequence into a kneel

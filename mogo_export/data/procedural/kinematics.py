@@ -138,4 +138,8 @@ def two_bone_ik(hip: np.ndarray, knee: np.ndarray, target: np.ndarray, l1: float
     pole = pole / np.maximum(np.linalg.norm(pole, axis=-1, keepdims=True), 1e-9)
     a = (l1 * l1 - l2 * l2 + d * d) / (2 * d)
     r = np.sqrt(np.maximum(l1 * l1 - a * a, 0.0))
+    # a near-straight leg whose old knee sat behind the hip-ankle line (a foot pointing down at take-off gives no
+    # forward) bends the other way: toward where the foot points over the floor
+    ahead = (pole * forward * np.array([1.0, 0.0, 1.0])).sum(-1, keepdims=True)
+    pole = np.where((ahead < 0) & (r < 0.25 * l1), -pole, pole)
     return hip + a * u + r * pole, hip + d * u
