@@ -1,6 +1,7 @@
 """`mogo-export`: build data, train, export, verify. Each subcommand is one stage of the pipeline.
 
     mogo-export dataset data/procedural --clips 2000
+    mogo-export import-motion mocap/ --captions mocap/captions.tsv --out data/mocap   # your BVH / glTF takes
     mogo-export train --data data/procedural --out checkpoints/base --preset base
     torchrun --standalone --nproc_per_node 2 -m mogo_export.cli train ...              # data-parallel
     mogo-export export checkpoints/base --out bundles/base
@@ -22,6 +23,18 @@ def _dataset(args) -> int:
 
     build_dataset(args.out, num_clips=args.clips, seed=args.seed, progress=True)
     print(f"dataset written to {args.out}")
+    return 0
+
+
+def _import_motion(args) -> int:
+    from .data.importer import import_motion
+
+    report = import_motion(args.folder, args.captions, args.out, rig=args.rig, layout=args.layout, seed=args.seed,
+                           overwrite=args.overwrite, progress=not args.quiet)
+    rigs = ", ".join(f"{n} on {r}" for r, n in sorted(report.rigs.items()))
+    print(f"imported {report.clips} clips ({rigs}) to {report.out}; largest residual {report.worst_residual_mm:.3f} mm")
+    for note in report.notes:
+        print(f"note: {note}")
     return 0
 
 
@@ -86,6 +99,22 @@ def main(argv=None) -> int:
     p.add_argument("--clips", type=int, default=2000)
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(run=_dataset)
+
+    p = sub.add_parser("import-motion", help="import motion capture (.bvh, .glb on a shipped rig or your rig file) "
+                                             "with captions as a dataset (HumanML3D layout; docs/rigs.md)")
+    p.add_argument("folder", type=Path, help="every .bvh and .glb under it is imported")
+    p.add_argument("--captions", type=Path, required=True,
+                   help="a TSV file: file<TAB>caption, or file<TAB>caption<TAB>start<TAB>end (seconds), per line")
+    p.add_argument("--out", type=Path, required=True, help="the dataset folder to write")
+    p.add_argument("--rig", default=None, help="the files' rig: a shipped rig's name or a rig file (.json); default: "
+                                               "the shipped rig whose bone names each file has")
+    p.add_argument("--layout", choices=("humanml3d", "procedural"), default="humanml3d",
+                   help="how the hips and collars sit around the pelvis and chest: as in the real HumanML3D data "
+                        "(default), or as in mogo's procedural data (to train beside it)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the train/val/test split")
+    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(run=_import_motion)
 
     p = add_training_args(sub.add_parser("train", help="train MoSA-VQ, extract tokens, train the RQHC-Transformer "
                                                        "(also under torchrun, on several processes or GPUs)"))

@@ -18,6 +18,7 @@ import shutil
 import time
 from functools import partial
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
@@ -227,18 +228,23 @@ def build_dataset(out_dir, num_clips: int = 2000, seed: int = 0, progress: bool 
         raise ValueError(f"path_sequences must be >= 0, got {path_sequences}")
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} already exists; pass overwrite=True (--overwrite) to replace it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.building-{os.getpid()}")
-    shutil.rmtree(tmp, ignore_errors=True)
-    for sub in ("new_joint_vecs", "new_joints", "texts", "labels"):
-        (tmp / sub).mkdir(parents=True)
+    return write_whole(out, "building", ("new_joint_vecs", "new_joints", "texts", "labels"),
+                       lambda tmp: _build_into(tmp, num_clips, num_long, num_path, seed, progress, workers))
 
+
+def write_whole(out: Path, doing: str, subdirs: tuple[str, ...], fill: Callable[[Path], object]):
+    """`fill(folder)` into a hidden sibling of `out` (with `subdirs`), renamed to `out` when it returns (replacing an
+    `out` that exists), removed if it raises: a dataset appears whole or not at all. -> what `fill` returns, or out."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.{doing}-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    for sub in subdirs:
+        (tmp / sub).mkdir(parents=True)
     try:
-        _build_into(tmp, num_clips, num_long, num_path, seed, progress, workers)
+        result = fill(tmp)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)  # never leave a half dataset behind, even a hidden one
         raise
-
     if out.exists():  # overwrite: swap in the new one, then drop the old
         trash = out.with_name(f".{out.name}.old-{os.getpid()}")
         out.rename(trash)
@@ -246,7 +252,7 @@ def build_dataset(out_dir, num_clips: int = 2000, seed: int = 0, progress: bool 
         shutil.rmtree(trash)
     else:
         tmp.rename(out)
-    return out
+    return out if result is None else result
 
 
 def main(argv=None) -> None:
