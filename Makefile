@@ -39,8 +39,9 @@ test-js: $(STAMP)
 	MOGO_JS_TINY=1 bash js/test/run.sh
 
 # The rigs' .glb and .bvh files in real tools: Khronos's gltf-validator and three.js's GLTFLoader (npm, into
-# tests/tools/node_modules) and real Blender's importers (bpy 5.0.1, a ~370 MB wheel, into .venv-blender; the first
-# install is the slow part). tests/tools/run.sh installs what is missing.
+# tests/tools/node_modules), real Blender's importers (bpy 5.0.1, a ~370 MB wheel, into .venv-blender; the first
+# install is the slow part) and Godot 3's editor, imported headless (Debian's godot3-server, with apt-get).
+# tests/tools/run.sh installs what is missing.
 test-tools: $(STAMP)
 	bash tests/tools/run.sh
 
