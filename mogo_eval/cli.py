@@ -81,12 +81,13 @@ def _stream(args) -> int:
 
 
 def _actions(args) -> int:
-    from .actions import actions_report, print_report
+    from .actions import actions_report, named_prompts_report, print_report
     from .protocol import write_json
     from .quality import train_classifier
 
     classifier = args.classifier or train_classifier(args.data, args.checkpoints)
     report = actions_report(args.bundle, args.data, classifier, args.variant, args.threads, args.prompts, args.seed)
+    report["named"] = named_prompts_report(args.bundle, args.data, classifier, args.variant, args.threads)
     print_report(report)
     if args.json:
         print(f"wrote {write_json(report, args.json)}")

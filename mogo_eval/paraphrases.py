@@ -8,6 +8,9 @@ Two sets, for an honest number:
   DEV      written first; the wording normaliser's lexicon (runtime/mogo_runtime/tca.py) was tuned while
            looking at how these came out.
   HELDOUT  written after that lexicon was frozen and measured once, never used to change it.
+  GAMES    the families added with procedural generator version 4 (issue 27), two prompts each.
+With version 4 three prompts were relabelled to the family of their own they now have: "the soldier marches ..."
+(march), "stay put and look around" (look_around), "crouch down and get back up" (crouch).
 """
 from __future__ import annotations
 
@@ -32,7 +35,7 @@ DEV: list[tuple[str, str]] = [
     ("right leg kick, like a footballer", "kick_right"),
     ("he kicks the door with his left foot", "kick_left"),
     ("do a left-footed kick", "kick_left"),
-    ("crouch down and get back up", "squat"),
+    ("crouch down and get back up", "crouch"),
     ("make her do some squats at the gym", "squat"),
     ("he spins to his left", "turn_left"),
     ("rotate 90 degrees to the left", "turn_left"),
@@ -57,7 +60,7 @@ DEV: list[tuple[str, str]] = [
 ]
 
 HELDOUT: list[tuple[str, str]] = [
-    ("the soldier marches onward across the field", "walk_forward"),
+    ("the soldier marches onward across the field", "march"),
     ("go forward at a normal pace pls", "walk_forward"),
     ("character takes a casual walk straight ahead 🚶", "walk_forward"),
     ("moonwalk style, he steps backwards away from the edge", "walk_backward"),
@@ -116,11 +119,62 @@ HELDOUT: list[tuple[str, str]] = [
     ("throw your arms in the air like you don't care", "raise_both_arms"),
     ("just stand there and breathe", "stand_idle"),
     ("do nothing for a few seconds", "stand_idle"),
-    ("stay put and look around", "stand_idle"),
+    ("stay put and look around", "look_around"),
     ("curtsy politely", "bow"),
     ("bow to the sensei", "bow"),
     ("bend forward to show respect", "bow"),
 ]
 
-ALL = DEV + HELDOUT
-SETS = {"dev": DEV, "heldout": HELDOUT}
+# The families added with issue 27 (generator version 4), two prompts each, written before any model trained on them
+# was run and never used to change the wording lexicon.
+GAMES: list[tuple[str, str]] = [
+    ("sneak up on the guard, crouched low", "sneak"), ("stealth walk like a ninja", "sneak"),
+    ("walk with a bad leg", "limp"), ("hobble along, the right leg is hurt", "limp"),
+    ("walk on tippy toes so nobody hears", "tiptoe"), ("tiptoe across the room", "tiptoe"),
+    ("skip happily down the road", "skip"), ("the kid skips along", "skip"),
+    ("march like a soldier on parade", "march"), ("left right left, march!", "march"),
+    ("trip over something and almost fall", "stumble"), ("he stumbles but catches himself", "stumble"),
+    ("hop on one foot", "hop_on_one_foot"), ("bounce along on the left leg only", "hop_on_one_foot"),
+    ("crouch down behind cover and look around", "crouch"), ("get down low and take cover", "crouch"),
+    ("go down on one knee", "kneel_down"), ("kneel before the king", "kneel_down"),
+    ("sit down on the floor", "sit_on_ground"), ("plop down on the grass", "sit_on_ground"),
+    ("grab his injured leg and fall to the ground", "collapse_holding_leg"),
+    ("she clutches her knee and collapses", "collapse_holding_leg"),
+    ("pick up the coin from the ground", "pick_up"), ("bend down and grab something off the floor", "pick_up"),
+    ("throw a baseball overhand", "throw_overhand"), ("chuck a grenade", "throw_overhand"),
+    ("toss the ball underhand", "throw_underhand"), ("bowl a ball underarm", "throw_underhand"),
+    ("push the crate forward", "push"), ("shove the heavy door open with both hands", "push"),
+    ("pull the rope hand over hand", "pull"), ("drag something heavy toward you", "pull"),
+    ("carry a big box across the room", "carry"), ("walk holding a package in front", "carry"),
+    ("reach up to the top shelf", "reach_up"), ("grab something from up high", "reach_up"),
+    ("climb a ladder", "climb_ladder"), ("go up the rungs", "climb_ladder"),
+    ("open the door and walk through", "open_door"), ("pull the door handle and go in", "open_door"),
+    ("point to the left", "point_left"), ("show me where it is, over there on the left", "point_left"),
+    ("point right", "point_right"), ("he points at something on his right", "point_right"),
+    ("point straight ahead", "point_forward"), ("point at the camera", "point_forward"),
+    ("salute the captain", "salute"), ("military salute", "salute"),
+    ("shrug like you don't know", "shrug"), ("shrug your shoulders, whatever", "shrug"),
+    ("nod yes", "nod"), ("nod your head in agreement", "nod"),
+    ("shake your head no", "shake_head"), ("disagree by shaking the head", "shake_head"),
+    ("wave him over, come here", "beckon"), ("beckon the player closer", "beckon"),
+    ("cheer with both fists in the air", "cheer"), ("celebrate a goal, fist pump!", "cheer"),
+    ("facepalm", "facepalm"), ("put a hand over your face in embarrassment", "facepalm"),
+    ("look around the room nervously", "look_around"), ("scan the area left and right", "look_around"),
+    ("stretch your arms after waking up", "stretch"), ("do a big stretch overhead", "stretch"),
+    ("block the attack with both arms", "block"), ("raise your guard and defend", "block"),
+    ("dodge to the left", "dodge_left"), ("duck out of the way to the left", "dodge_left"),
+    ("dodge right", "dodge_right"), ("evade the hit by moving right", "dodge_right"),
+    ("get hit in the face and stagger back", "hit_reaction_front"), ("take a punch to the chest", "hit_reaction_front"),
+    ("get hit from behind", "hit_reaction_back"), ("pushed in the back, lurching forward", "hit_reaction_back"),
+    ("roundhouse kick", "roundhouse_kick"), ("spinning side kick to the head", "roundhouse_kick"),
+    ("uppercut to the chin", "uppercut"), ("throw an uppercut with the right", "uppercut"),
+    ("do some jumping jacks", "jumping_jacks"), ("star jumps for warm-up", "jumping_jacks"),
+    ("do lunges", "lunges"), ("step forward into a lunge and back", "lunges"),
+    ("make circles with your arms", "arm_circles"), ("arm rotations to warm up the shoulders", "arm_circles"),
+    ("pretend to swim the crawl", "swim_strokes"), ("breaststroke arms in the air", "swim_strokes"),
+    ("dance!", "dance"), ("bust a move on the dance floor", "dance"),
+    ("do a backflip", "backflip"), ("back somersault", "backflip"),
+]
+
+ALL = DEV + HELDOUT + GAMES
+SETS = {"dev": DEV, "heldout": HELDOUT, "games": GAMES}

@@ -19,10 +19,13 @@ from pathlib import Path
 from .presets import CPU_NAMES, DEFAULT  # no torch: a run that only generates never loads it
 
 PROMPTS = (
-    "a person walks forward and then jumps",
+    "a person walks forward and then jumps",           # two actions: played one after the other (plan.py)
     "a person waves with the right hand",
     "someone squats down slowly",
     "a man kicks with his left leg",
+    "a person does a backflip",
+    "a man sneaks forward slowly",
+    "a woman does five jumping jacks",
 )
 TIMELINE = [("a person walks forward", 0.0), ("a person turns left", 10.0), ("a person waves with the right hand",
                                                                             20.0)]
@@ -61,13 +64,26 @@ def square_then_waypoint(bundle: Path, seed: int, most_seconds: float = 40.0):
                              f"{run:.1f} s more")
 
 
+def _warn_if_old(data: Path) -> None:
+    """A dataset an older generator built (fewer action families) is used as it is, but never silently."""
+    import json
+
+    from .data.procedural.writer import GENERATOR_VERSION
+
+    built = json.loads((data / "dataset.json").read_text()).get("generator_version")
+    if built is not None and built != GENERATOR_VERSION:
+        print(f"  note: {data} was built by procedural generator version {built}, this code builds version "
+              f"{GENERATOR_VERSION} (more action families): remove {data}, checkpoints/ and bundles/ to rebuild them")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", choices=CPU_NAMES, default=DEFAULT,
                     help="a preset that trains on a CPU (mogo_export/presets.py)")
     ap.add_argument("--data", type=Path, default=Path("data/procedural"))
     ap.add_argument("--out", type=Path, default=Path("outputs/demo"))
-    ap.add_argument("--clips", type=int, default=2000)
+    # 4,000 short clips: about 48 per action family for training (67 families)
+    ap.add_argument("--clips", type=int, default=4000)
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args(argv)
     ckpt, bundle = Path("checkpoints") / args.preset, Path("bundles") / args.preset
@@ -80,6 +96,7 @@ def main(argv=None) -> int:
         build_dataset(args.data, num_clips=args.clips, seed=0, progress=True)
     else:
         print(f"[1/4] dataset: {args.data}")
+        _warn_if_old(args.data)
 
     if not (bundle / "manifest.json").exists():
         from .export.bundle import export_bundle

@@ -181,7 +181,9 @@ export class GenerationTask {
         if (fixed === null && stream.finished) return;
       }
     }
-    return (await this.#decoded(await this.#collect(steps(), 1, onProgress, most)))[0];
+    const out = (await this.#decoded(await this.#collect(steps(), 1, onProgress, most)))[0];
+    out.starts = stream.starts.filter((t) => t < out.tokens.length / this.backend.dims.numLevels);
+    return out;
   }
 
   async #decoded(tokenSeqs) {

@@ -48,6 +48,7 @@ export class StreamContext {
     this.limits = actions.limits;
     this.part = 0;             // the action played
     this.finishedAt = null;    // the token count when the last action first ended
+    this.starts = [this.count];   // the token each action started at
     this.#startPart();
   }
 
@@ -66,8 +67,10 @@ export class StreamContext {
   }
 
   #nextPart() {
-    if (this.part + 1 < this.parts.length) this.part += 1;
-    else if (this.finishedAt === null) this.finishedAt = this.count;
+    if (this.part + 1 < this.parts.length) {
+      this.part += 1;
+      this.starts.push(this.count);
+    } else if (this.finishedAt === null) this.finishedAt = this.count;
     this.#startPart();
   }
 

@@ -211,11 +211,13 @@ export class MotionGenerator {
     return out;
   }
 
-  #motion(text, { tokens, features, joints }, seed, alignedText) {
+  #motion(text, { tokens, features, joints, starts = null }, seed, alignedText) {
     const { numLevels: L, featureDim: D } = this.dims;
     const J = this.skeleton.parents.length, frames = features.length / D;
+    // a prompt of several actions: each action's text and the frame it starts at, in order (else null)
+    const actions = starts && alignedText.split(' | ').slice(0, starts.length).map((a, i) => [a, starts[i] * this.dims.downsample]);
     return {
-      text, alignedText, seed, fps: this.fps, numFrames: frames, seconds: frames / this.fps,
+      text, alignedText, actions, seed, fps: this.fps, numFrames: frames, seconds: frames / this.fps,
       tokens: { data: tokens, dims: [tokens.length / L, L] },
       features: { data: features, dims: [frames, D] },
       joints: { data: joints, dims: [frames, J, 3] },

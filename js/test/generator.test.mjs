@@ -118,6 +118,8 @@ test('each action of a prompt plays until the model ends it, then the next', asy
     assert.ok(n < both.tokens.dims[0] && both.tokens.dims[0] <= n + endless.maxTokens);
     assert.equal(both.alignedText, `${WALK} | ${JUMP}`);
     assert.equal(walk.alignedText, null);
+    assert.equal(walk.actions, null);
+    assert.deepEqual(both.actions, [[WALK, 0], [JUMP, n * endless.dims.downsample]]);   // where each action starts
   }
 });
 

@@ -36,8 +36,8 @@ from .sequences import generate_long
 
 # 2: jumps land where they are meant to (in place, or their distance ahead); long sequences
 # 3: path sequences (short clips and long sequences unchanged)
-# 4: 44 more action families (styles, transitions, mimed, gestures, combat, exercise; the first 21 unchanged), and
-#    body parts other than the feet that may rest on the floor (kneeling, sitting on the ground)
+# 4: 46 more action families (styles, transitions, mimed, gestures, combat, exercise; the first 21 unchanged), and
+#    body parts other than the feet that may rest on the floor (kneeling, sitting, lying, falling)
 GENERATOR_VERSION = 4
 SPLITS = (("train", 0.80), ("val", 0.15), ("test", 0.05))
 LONG_EVERY = 10  # by default one long sequence per 10 short clips
