@@ -124,14 +124,14 @@ def main(argv=None) -> int:
     if gen.endless:   # a character that keeps moving and follows new prompts: one 30 s stream, three prompts
         t = time.perf_counter()
         motion = gen.generate(TIMELINE, seconds=30, seed=args.seed)
-        stem = args.out / "05_endless_stream_walk_turn_wave"
+        stem = args.out / f"{len(PROMPTS) + 1:02d}_endless_stream_walk_turn_wave"
         files = [motion.save(stem.with_suffix(ext)) for ext in (".bvh", ".gif")]
         print(f"  {' -> '.join(f'{p!r} at {s:g} s' for p, s in TIMELINE)}: {motion.seconds:.0f} s of motion in "
               f"{time.perf_counter() - t:.2f} s -> {', '.join(str(f) for f in files)}")
     if gen.backend.control is not None:
         t = time.perf_counter()
         motion, note = square_then_waypoint(bundle, args.seed)
-        stem = args.out / "06_square_path_then_run_to_waypoint"
+        stem = args.out / f"{len(PROMPTS) + 2:02d}_square_path_then_run_to_waypoint"
         files = [motion.save(stem.with_suffix(ext)) for ext in (".bvh", ".gif")]
         print(f"  walks a 4 m square, then runs to {WAYPOINT}: {note}; {motion.seconds:.1f} s of motion in "
               f"{time.perf_counter() - t:.2f} s -> {', '.join(str(f) for f in files)}")
