@@ -1,18 +1,18 @@
-"""The getting-down families (mogo_export/data/procedural/transitions.py) do what their captions say: measured
+"""The getting-down families (mogo_export/data/procedural/transitions.py, falls.py) do what their captions say: measured
 on 8 clips of each family (through the features, and as built for heights above the floor and speeds), with
 bounds taken from each family's definition, not fitted to what the generator happens to output. Also the
 grounding they rely on: a body resting on knees, seat or hands stays on the floor and does not slide."""
 import numpy as np
 import pytest
 
-from mogo_export.data.procedural import clips as C, families, transitions
+from mogo_export.data.procedural import clips as C, falls, families, transitions
 from mogo_export.data.procedural.grounding import pose_to_joints
 from mogo_export.data.procedural.pose import FPS, Pose
 
 from family_facts import STAND_Y, motion_facts, through_features
 
 FAMILIES = list(families.FAMILIES)
-NAMES = [f.__name__ for f in transitions.FAMILIES]
+NAMES = [f.__name__ for f in transitions.FAMILIES + falls.FAMILIES]
 SPINE_AND_HEAD = [0, 3, 6, 9, 12, 15]
 KNEE = {"left": 4, "right": 5}
 ANKLE = {"left": 7, "right": 8}
@@ -295,9 +295,10 @@ def test_every_transition_does_what_its_captions_say():
 def test_registered_and_last_only():
     assert NAMES == ["crouch", "kneel_down", "sit_on_ground", "collapse_holding_leg", "fall_and_get_up",
                      "lie_down_and_get_up"]
-    assert set(transitions.LAST_ONLY) == {"kneel_down", "sit_on_ground", "collapse_holding_leg"} <= families.LAST_ONLY
+    last = set(transitions.LAST_ONLY + falls.LAST_ONLY)
+    assert last == {"kneel_down", "sit_on_ground", "collapse_holding_leg"} and last <= families.LAST_ONLY
     # the families that end on the floor never start a sequence: what ends a clip ends it low
-    for name in transitions.LAST_ONLY:
+    for name in sorted(last):
         a = families.FAMILIES[name](np.random.default_rng(0))
         assert pose_to_joints(a.pose)[-1, 0, 1] < 0.5, name
 
