@@ -157,10 +157,23 @@ def classifier_accuracy_on_real(data: Path, classifier_path: Path, split: str = 
     return float(np.mean([p == f for p, (_, f) in zip(preds, items)]))
 
 
-def vq_reconstruction(data: Path, vq_path: Path, split: str = "test") -> dict:
+def vq_reconstruction(data: Path, vq_path: Path, split: str = "test", classifier_path: Path | None = None) -> dict:
+    """MPJPE and L1 of `split`'s clips through the VQ; with a classifier also `action_accuracy`: the share of the
+    held-out whole clips still judged their family after the round trip, the most the transformer can reach."""
     vq, _, _ = build_from_checkpoint(vq_path, "vq", VQConfig, MoSAVQ)
     ds = MotionDataset.load(data, split)
-    return evaluate_vq(vq, [ds.normalize(it.features) for it in ds.items], ds.mean, ds.std)
+    report = evaluate_vq(vq, [ds.normalize(it.features) for it in ds.items], ds.mean, ds.std)
+    if classifier_path is not None:
+        model, families = load_classifier(classifier_path)
+        whole = [(it, f) for it, f in held_out_items(data, families) if not it.is_span]
+        with torch.no_grad():
+            recon = [vq.decode_indices(vq.encode(torch.from_numpy(c[None, :len(c) // vq.cfg.downsample *
+                                                                     vq.cfg.downsample])))[0].numpy()
+                     for c in (ds.normalize(it.features) for it, _ in whole)]
+        preds, _ = classify(model, families, recon)
+        report["action_accuracy"] = float(np.mean([p == f for p, (_, f) in zip(preds, whole)]))
+        report["action_clips"] = len(whole)
+    return report
 
 
 def family_gif(gen: TorchGenerator, families: list[str], captions: dict[str, str], path: Path,
@@ -194,7 +207,8 @@ def quality_report(data: Path, ckpt_dir: Path, gif: Path | None = None, bundle: 
     t0 = time.perf_counter()
     clf = train_classifier(data, ckpt_dir, progress=progress)
     gen = TorchGenerator.from_checkpoints(ckpt_dir)
-    report = {"sampling": sampling.to_dict(), "vq_test": vq_reconstruction(data, ckpt_dir / "vq.pt"),
+    report = {"sampling": sampling.to_dict(),
+              "vq_test": vq_reconstruction(data, ckpt_dir / "vq.pt", classifier_path=clf),
               "classifier_accuracy_real_test": classifier_accuracy_on_real(data, clf),
               "generation": generation_quality(torch_features(gen, sampling), data, clf, seeds,
                                                progress=progress)}

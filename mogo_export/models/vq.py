@@ -33,6 +33,8 @@ class VQConfig:
     dead_code_threshold: float = 0.1    # a code whose EMA count < this x the level's mean count is reset
     vel_loss: float = 0.0               # weight of an L1 loss on frame-to-frame differences (0 = off)
     mse_loss: float = 0.0               # weight of a squared-error term added to the L1 reconstruction
+    root_loss: float = 1.0              # the root's 4 channels' errors (HumanML3D/KIT layout) scaled by this,
+                                        # as if their Std were this many times smaller (T2M's feat_bias)
 
     def __post_init__(self):
         assert self.downsample in (1, 2, 4), "downsample must be 1, 2 or 4"
@@ -347,6 +349,12 @@ class MoSAVQ(nn.Module):
         q = self.quantizer(self.encoder(x))
         recon = self.decoder(q.quantized)  # (B, T, D)
         err = recon - x
+        if cfg.root_loss != 1.0:
+            # the root is 4 of 263 channels but all of where a body goes: a sidestep without its root velocity
+            # reconstructs as standing still (judged shaking the head)
+            w = torch.ones(x.shape[-1], dtype=x.dtype, device=x.device)
+            w[:4] = cfg.root_loss
+            err = err * w
         rec = err.abs().mean()
         loss = rec + cfg.beta * q.commit + cfg.gamma * q.reg
         if cfg.mse_loss > 0:

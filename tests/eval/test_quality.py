@@ -8,7 +8,8 @@ import pytest
 from mogo_eval.cli import main
 from mogo_eval.features import FeatureGenerator
 from mogo_eval.quality import (classify, generation_quality, held_out_cases, held_out_items, load_classifier,
-                               train_classifier)
+                               train_classifier, vq_reconstruction)
+from mogo_export.models.vq import MoSAVQ
 from mogo_export.data.dataset import MotionDataset
 
 
@@ -47,6 +48,26 @@ def test_accuracy_is_the_classifier_verdict_on_what_the_generator_returns(data, 
     for fam in {f for _, f in cases}:
         mine = [p == f for p, (_, f) in zip(preds, cases) if f == fam]
         assert report["per_family"][fam] == pytest.approx(np.mean(mine))
+
+
+def test_the_vq_ceiling_is_the_classifier_verdict_on_the_round_trip(data, classifier, tiny_checkpoints,
+                                                                     monkeypatch):
+    """A lossless VQ keeps every clip the classifier's: its ceiling is the classifier's accuracy on the real
+    whole clips (cut to whole tokens). The tiny VQ loses some, and the report says how many."""
+    model, families = load_classifier(classifier)
+    whole = [(it, f) for it, f in held_out_items(data, families) if not it.is_span]
+    ds = MotionDataset.load(data, "test")
+    real = [ds.normalize(it.features)[:len(it.features) // 4 * 4] for it, _ in whole]
+    expected = np.mean([p == f for p, (_, f) in zip(classify(model, families, real)[0], whole)])
+    tiny = vq_reconstruction(data, tiny_checkpoints / "vq.pt", classifier_path=classifier)
+    assert tiny["action_clips"] == len(whole) > 0 and 0.0 <= tiny["action_accuracy"] <= 1.0
+
+    monkeypatch.setattr(MoSAVQ, "encode", lambda self, x: x)
+    monkeypatch.setattr(MoSAVQ, "decode_indices", lambda self, x: x)
+    lossless = vq_reconstruction(data, tiny_checkpoints / "vq.pt", classifier_path=classifier)
+    assert lossless["action_accuracy"] == pytest.approx(expected)
+    assert lossless["mpjpe_mm"] == 0.0
+    assert "action_accuracy" not in vq_reconstruction(data, tiny_checkpoints / "vq.pt")
 
 
 def test_a_generator_that_ignores_the_text_scores_only_its_one_family(data, classifier, clips_by_caption):
@@ -104,7 +125,7 @@ def test_cli_judges_torch_and_every_bundle_variant_with_the_same_seeds(tiny_chec
     # every row samples as the bundle would for its users, and the report says how
     assert report["sampling"] == json.loads((tiny_bundle / "manifest.json").read_text())["sampling_defaults"]
     assert gif.stat().st_size > 0 and report["gif"] == str(gif)
-    assert report["vq_test"]["mpjpe_mm"] > 0
+    assert report["vq_test"]["mpjpe_mm"] > 0 and 0.0 <= report["vq_test"]["action_accuracy"] <= 1.0
 
 
 def test_cli_refuses_bad_arguments_before_any_work(tiny_checkpoints, data, tmp_path, capsys):

@@ -264,3 +264,19 @@ def test_length_must_be_a_multiple_of_the_downsample():
     with pytest.raises(AssertionError):
         m(torch.randn(1, 10, 263))
     assert isinstance(m.cfg, VQConfig)
+
+
+def test_the_root_weight_pulls_the_root_channels_harder_and_only_them():
+    torch.manual_seed(0)
+    x = torch.randn(1, 8, 263)
+    err = torch.full_like(x, 0.5)   # every feature off by the same amount
+    g1 = _feature_grads(x, x + err)
+    g5 = _feature_grads(x, x + err, root_loss=5.0)
+    torch.testing.assert_close(g1[:4], g1[4:8])       # weight 1: the root is 4 channels among 263
+    torch.testing.assert_close(g5[:4], 5 * g1[:4])    # its errors count 5 times
+    torch.testing.assert_close(g5[4:], g1[4:])
+    # the squared term sees the weighted error, as if the root's Std were 5 times smaller: 5 x 5 on top of L1
+    s1 = _feature_grads(x, x + err, mse_loss=0.1)
+    s5 = _feature_grads(x, x + err, mse_loss=0.1, root_loss=5.0)
+    torch.testing.assert_close(s5[:4] - g5[:4], 25 * (s1[:4] - g1[:4]))
+    torch.testing.assert_close(s5[4:], s1[4:])

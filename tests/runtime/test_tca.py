@@ -47,6 +47,10 @@ from mogo_runtime.text import TextEncoderSession
     ("SHE JUMPED 2x!!!", ["jumps twice"]),
     ("back up slowly", ["walks backward slowly"]),
     ("", []), ("lol ok", []),
+    # actions of their own since the 67 families: not rewritten into older ones (jump in place, punch, both arms)
+    ("do some jumping jacks", ["does jumping jacks"]), ("a man is doing 5 jumping jacks", ["does five jumping jacks"]),
+    ("star jumps for warm-up", ["does star jumps for warm up"]),
+    ("he pumps his fists", ["pumps his fists"]), ("reach up to the top shelf", ["reaches up to the top shelf"]),
 ])
 def test_wording_is_normalised_and_split_in_order(raw, clauses):
     assert WordingNormalizer().normalize(raw) == clauses

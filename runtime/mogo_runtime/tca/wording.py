@@ -9,10 +9,10 @@ import re
 import unicodedata
 from itertools import groupby
 
-from .lexicon import (AFTER, BASE_VERBS, CAPTION_VERB_SKIP, CAUSATIVE, CONTRACTIONS, COUNTS, DANGLING, DIRECTIONS,
-                      EMOJI, FILLER_PHRASES, FILLERS, FUNCTION, HELPERS, IRREGULAR, KEEP_ADVERBS, LEADING_SUBJECT,
-                      LIGHT_VERBS, NOUN_VERBS, NUMBERS, PHRASES, SEQ_SPLIT, SUBJECT_IN_CAPTION, SYNONYMS, TIMES,
-                      WEAK_VERBS, WORD_MAP)
+from .lexicon import (AFTER, BASE_VERBS, CAPTION_VERB_SKIP, CAUSATIVE, COMPOUND_NOUNS, CONTRACTIONS, COUNTS,
+                      DANGLING, DIRECTIONS, EMOJI, FILLER_PHRASES, FILLERS, FUNCTION, HELPERS, IRREGULAR,
+                      KEEP_ADVERBS, LEADING_SUBJECT, LIGHT_VERBS, NOUN_VERBS, NUMBERS, PHRASES, SEQ_SPLIT,
+                      SUBJECT_IN_CAPTION, SYNONYMS, TIMES, WEAK_VERBS, WORD_MAP)
 
 
 def _third_person(base: str) -> str:
@@ -165,7 +165,7 @@ class WordingNormalizer:
                         kept.append(words[j])
                     j += 1
                 noun = words[j] if j < len(words) else None
-                if noun in NOUN_VERBS:
+                if noun in NOUN_VERBS and (words[j - 1], noun) not in COMPOUND_NOUNS:
                     out.append(NOUN_VERBS[noun])
                     if count is not None:
                         out.append(TIMES.get(count, f"{count} times"))
@@ -181,6 +181,9 @@ class WordingNormalizer:
         first_weak = None
         for i, w in enumerate(words):
             if w in HELPERS and not self.is_verb(w):
+                continue
+            if (w, words[i + 1] if i + 1 < len(words) else None) in COMPOUND_NOUNS or \
+                    (words[i - 1] if i else None, w) in COMPOUND_NOUNS:
                 continue
             b = self.base(w)
             if b in self.verbs:
