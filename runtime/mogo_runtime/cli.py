@@ -32,6 +32,7 @@ from .bundle.manifest import SCHEMA_VERSION
 from .bundle.sampling import SamplingConfig
 from .bundle.sections import GRAPHS, BundleError
 from .control.commands import Request, parse_request
+from .outputs.extras import MissingExtra
 from .outputs.motion import RIG_FORMATS, SAVE_FORMATS, check_output_path
 from .outputs.rig import RIGS, load_rig
 from .text import MAX_PROMPT_CHARS, check_texts, load_tokenizer
@@ -150,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.run(args)
     except UsageError as e:
         return _fail(str(e))
-    except (BundleError, ValueError, OSError) as e:  # BundleError and OutputError included
+    except (BundleError, ValueError, OSError, MissingExtra) as e:  # BundleError and OutputError included
         return _fail(str(e))
     except MemoryError:
         return _fail("out of memory (ask for less: fewer characters, shorter motions)")

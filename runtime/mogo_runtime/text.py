@@ -4,7 +4,9 @@ onnxruntime session options every graph of the runtime is opened with.
 The tokenizer settings live here, once: the torch side (`mogo_export.models.text_encoder`) imports
 `TokenizerSettings`, `configure_tokenizer` and `tokenize` from this module, the exporter writes a
 `tokenizer.json` with them applied (plus `max_length` in the graph's metadata), and `TextEncoderSession`
-reads them back from that file. So training, export and runtime cut and pad prompts the same way.
+reads them back from that file. So training, export and runtime cut and pad prompts the same way. The torch side
+tokenizes with HuggingFace's `tokenizers` library, the runtime with its own reading of the same file
+(mogo_runtime.tokenizer: same ids, no dependency); these functions take either.
 
     from mogo_runtime.text import TextEncoderSession
     enc = TextEncoderSession("bundle/text_encoder.onnx", "bundle/tokenizer.json", threads=1)
@@ -12,28 +14,20 @@ reads them back from that file. So training, export and runtime cut and pad prom
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tokenizers import Tokenizer
 
 from .checks import as_int, shown
+from .tokenizer import PARTS as TOKENIZER_PARTS  # noqa: F401 - read by the JavaScript tests (make_reference.py)
+from .tokenizer import Tokenizer
 
 # The encoder reads a prompt's first max_length tokens (a few hundred words) and drops the rest, but the tokenizer
 # and the aligner work on all of it first: a 10 MB prompt took 36 s and 5 GB before being cut (CJK text, one token
 # a character). 10,000 characters is many times what any bundle reads.
 MAX_PROMPT_CHARS = 10_000
 MAX_THREADS = 64   # onnxruntime segfaults or hangs on absurd thread counts; no CPU this runs on has more cores
-# The tokenizer.json parts both runtimes implement (js/src/tokenizer.js follows them rule for rule). Others are refused
-# before the tokenizers library loads the file: a Replace normalizer that turns a character into 200,000 made a
-# 10,000-character prompt abort the process (the library allocating without bound).
-TOKENIZER_PARTS = {"normalizer": {"BertNormalizer", "Lowercase", "StripAccents", "NFC", "NFD", "NFKC", "NFKD",
-                                  "Sequence"},
-                   "pre_tokenizer": {"BertPreTokenizer", "Whitespace", "WhitespaceSplit", "Sequence"},
-                   "model": {"WordPiece", "WordLevel"},
-                   "post_processor": {"BertProcessing", "TemplateProcessing"}}
 
 
 @dataclass(frozen=True)
@@ -74,32 +68,14 @@ def configure_tokenizer(tok: Tokenizer, settings: TokenizerSettings) -> Tokenize
 
 
 def load_tokenizer(data: bytes, name: str) -> Tokenizer:
-    """A tokenizer.json's bytes -> the Tokenizer, with its settings checked (TokenizerSettings.from_tokenizer); a
-    file that is not one, or uses parts outside TOKENIZER_PARTS, is a ValueError naming `name`."""
+    """A tokenizer.json's bytes -> the runtime's Tokenizer (mogo_runtime.tokenizer), with its settings checked
+    (TokenizerSettings.from_tokenizer); a file that is not one, or uses parts outside TOKENIZER_PARTS, is a
+    ValueError naming `name`."""
     try:
-        spec = json.loads(data)
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
-        raise ValueError(f"{name}: not a tokenizer.json ({type(e).__name__})") from None
-    parts = [(key, spec.get(key)) for key in TOKENIZER_PARTS] if isinstance(spec, dict) else []
-    for i, t in enumerate(spec.get("added_tokens") or [] if isinstance(spec, dict) else []):
-        flags = [f for f in ("single_word", "lstrip", "rstrip") if isinstance(t, dict) and t.get(f)]
-        if flags:          # matching rules the JavaScript runtime does not implement: no tokens would agree
-            raise ValueError(f"{name}: added_tokens[{i}].{flags[0]} is true; this runtime reads plain added tokens")
-    while parts:
-        key, part = parts.pop()
-        if part is None and key != "model":
-            continue
-        kind = part.get("type") if isinstance(part, dict) else None
-        if not isinstance(kind, str) or kind not in TOKENIZER_PARTS[key]:
-            raise ValueError(f"{name}: {key} {shown(kind)} is not one this runtime reads (it reads "
-                             f"{', '.join(sorted(TOKENIZER_PARTS[key]))})")
-        if kind == "Sequence":
-            inner = part.get("normalizers" if key == "normalizer" else "pretokenizers")
-            parts += [(key, p) for p in inner] if isinstance(inner, list) else [(key, False)]
-    try:
-        tok = Tokenizer.from_str(data.decode("utf-8"))
-    except Exception as e:   # noqa: BLE001 - the library raises a bare Exception for a file it cannot parse
-        raise ValueError(f"{name}: not a tokenizer the tokenizers library can read ({shown(str(e), 200)})") from None
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{name}: not a tokenizer.json (UnicodeDecodeError)") from None
+    tok = Tokenizer.from_str(text, name)
     TokenizerSettings.from_tokenizer(tok, source=name)
     return tok
 
@@ -170,8 +146,8 @@ class TextEncoderSession:
     def __init__(self, onnx_path: str | Path | bytes, tokenizer_path: str | Path | bytes, threads: int = 1,
                  providers: list[str] | None = None, names: tuple[str, str] | None = None):
         """The graph and the tokenizer as paths, or as their bytes (what a bundle checked: `names` then says which
-        files they are, for messages). Whatever the tokenizers library or onnxruntime cannot read is a ValueError
-        naming the file."""
+        files they are, for messages). Whatever the tokenizer or onnxruntime cannot read is a ValueError naming
+        the file."""
         import onnxruntime as ort  # imported here so `tokenize` works without onnxruntime
 
         onnx_name, tokenizer_name = names or (str(onnx_path), str(tokenizer_path))

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..checks import NAME_MAX, shown
 from ..kinematics.skeleton import Skeleton
+from .extras import require
 from .files import OutputError, write_atomic
 
 SAVE_FORMATS = (".npy", ".json", ".bvh", ".glb", ".gif", ".mp4")
@@ -89,8 +90,9 @@ class Motion:
 
 
 def check_output_path(path: str | Path) -> str:
-    """Fail before any work is done: unknown extension (ValueError) or a file that cannot be written here
-    (OutputError: unwritable folder, a folder in the way).
+    """Fail before any work is done: unknown extension (ValueError), a format whose optional packages this install
+    lacks (extras.MissingExtra), or a file that cannot be written here (OutputError: unwritable folder, a folder in
+    the way).
 
     Returns the lower-case extension. Creates missing parent folders, as `save` would.
     """
@@ -102,6 +104,7 @@ def check_output_path(path: str | Path) -> str:
     if suffix not in SAVE_FORMATS:
         raise ValueError(f"{path}: unknown output format {path.suffix or '(no extension)'!r}; "
                          f"supported: {', '.join(SAVE_FORMATS)}")
+    require(suffix)      # the format's optional packages (extras.py)
     if path.is_dir():
         raise OutputError(f"{path}: is a folder; give a file name ending in {suffix}")
     try:
