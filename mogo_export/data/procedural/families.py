@@ -11,14 +11,14 @@ from __future__ import annotations
 
 from types import MappingProxyType
 
-from . import combat, exercise, falls, gestures, mimed, styles, transitions
+from . import acrobatics, combat, exercise, falls, gestures, mimed, styles, transitions
 from .action import Family
 from .in_place import (bow, clap, kick_left, kick_right, punch, raise_both_arms, sit_down, squat, stand_idle,
                        wave_left_hand, wave_right_hand)
 from .locomotion import (jump_forward, jump_in_place, run, sidestep_left, sidestep_right, turn_left, turn_right,
                          walk_backward, walk_circle, walk_forward)
 
-GROUPS = (styles, transitions, falls, mimed, gestures, combat, exercise)
+GROUPS = (styles, transitions, falls, mimed, gestures, combat, exercise, acrobatics)
 
 FAMILIES: MappingProxyType[str, Family] = MappingProxyType({f.__name__: f for f in (
     walk_forward, walk_backward, walk_circle, run, jump_in_place, jump_forward, wave_right_hand,
