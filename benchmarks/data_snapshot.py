@@ -19,6 +19,8 @@ import time
 
 import numpy as np
 
+from .snapshot import save_or_compare
+
 SEEDS = (0, 1, 2)
 SEQUENCE_SEEDS = (0, 1, 2, 3)
 
@@ -48,37 +50,13 @@ def snapshot() -> dict[str, np.ndarray]:
     return out
 
 
-def compare(before: dict[str, np.ndarray], now: dict[str, np.ndarray]) -> list[str]:
-    problems = [f"{k}: missing now" for k in sorted(before.keys() - now.keys())]
-    problems += [f"{k}: new" for k in sorted(now.keys() - before.keys())]
-    for k in sorted(before.keys() & now.keys()):
-        a, b = before[k], now[k]
-        if a.shape != b.shape or a.dtype != b.dtype or a.tobytes() != b.tobytes():
-            detail = (f"max |diff| {np.abs(a - b).max():.3g}" if a.shape == b.shape and a.dtype.kind == "f"
-                      else f"{a.shape} {a.dtype} -> {b.shape} {b.dtype}")
-            problems.append(f"{k}: differs ({detail})")
-    return problems
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mode", choices=["save", "compare"])
     ap.add_argument("file")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    now = snapshot()
-    if args.mode == "save":
-        np.savez(args.file, **now)
-        print(f"saved {len(now)} arrays to {args.file} in {time.perf_counter() - t0:.0f} s")
-        return 0
-    with np.load(args.file) as f:
-        before = {k: f[k] for k in f.files}
-    problems = compare(before, now)
-    for p in problems[:40]:
-        print(p)
-    print(f"{len(now)} arrays compared in {time.perf_counter() - t0:.0f} s: "
-          f"{'IDENTICAL' if not problems else f'{len(problems)} arrays differ'}")
-    return 1 if problems else 0
+    return save_or_compare(args.mode, args.file, snapshot(), t0)
 
 
 if __name__ == "__main__":

@@ -250,13 +250,19 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     now = snapshot(args.bundle, args.only)
-    if args.mode == "save":
-        np.savez(args.file, **now)
-        print(f"saved {len(now)} arrays to {args.file} in {time.perf_counter() - t0:.0f} s")
+    return save_or_compare(args.mode, args.file, now, t0, lambda k: k.split("/")[0] in args.only or
+                           ("clips" in args.only and k.split("/")[0] in ("fp32", "int8")))
+
+
+def save_or_compare(mode: str, file: str, now: dict[str, np.ndarray], t0: float, keep=lambda key: True) -> int:
+    """Save `now` to `file`, or compare it with the arrays `file` holds (those whose key `keep` accepts) and print
+    what differs; the exit status (1: something differs). benchmarks/data_snapshot.py ends the same way."""
+    if mode == "save":
+        np.savez(file, **now)
+        print(f"saved {len(now)} arrays to {file} in {time.perf_counter() - t0:.0f} s")
         return 0
-    with np.load(args.file) as f:
-        before = {k: f[k] for k in f.files if k.split("/")[0] in args.only or
-                  ("clips" in args.only and k.split("/")[0] in ("fp32", "int8"))}
+    with np.load(file) as f:
+        before = {k: f[k] for k in f.files if keep(k)}
     problems = compare(before, now)
     for p in problems[:40]:
         print(p)
