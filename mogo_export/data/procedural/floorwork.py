@@ -48,16 +48,21 @@ def fit_pose(c: dict, build, channels: tuple[str, ...], residual, iters: int = 1
 
     def r(v):
         return np.asarray(residual(floor_points(lambda p: build(p, {**c, **dict(zip(channels, v))}))), np.float64)
-    for _ in range(iters):
-        r0 = r(x)
-        if np.abs(r0).max() < 1e-5:
-            break
-        J = np.stack([(r(x + 0.1 * e) - r0) / 0.1 for e in np.eye(len(x))], axis=1)
-        # damped (a pose at the end of its reach, a straight thigh, has no gradient) and at most 20 degrees a step
-        step = np.linalg.solve(J.T @ J + 1e-6 * np.eye(len(x)), J.T @ r0)
-        x = x - step * min(1.0, 20.0 / max(np.abs(step).max(), 1e-12))
-    c.update(zip(channels, x.tolist()))
+    c.update(zip(channels, gauss_newton(r, x, iters, tol=1e-5, damping=1e-6).tolist()))
     return c
+
+
+def gauss_newton(residual, x: np.ndarray, iters: int, tol: float, damping: float) -> np.ndarray:
+    """x moved (degrees) until max |residual(x)| < tol or `iters` steps: finite-difference Jacobian (0.1 deg),
+    damped (a pose at the end of its reach, a straight thigh, has no gradient), at most 20 degrees a step."""
+    for _ in range(iters):
+        r0 = residual(x)
+        if np.abs(r0).max() < tol:
+            break
+        J = np.stack([(residual(x + 0.1 * e) - r0) / 0.1 for e in np.eye(len(x))], axis=1)
+        step = np.linalg.solve(J.T @ J + damping * np.eye(len(x)), J.T @ r0)
+        x = x - step * min(1.0, 20.0 / max(np.abs(step).max(), 1e-12))
+    return x
 
 
 def hold_within(budget: TimeBudget, hold: float, fixed: float, least: float) -> float:
@@ -109,14 +114,7 @@ def clutch_keys(c: dict, side: str, at: float = 0.3) -> dict:
         across = (j[1] - j[2]) / np.linalg.norm(j[1] - j[2])   # to the body's left
         return np.concatenate([j[20] - (grip + 0.05 * across + 0.04 * lateral),
                                j[21] - (grip - 0.05 * across + 0.04 * lateral)])
-    x = np.array([c[n] for n in arms], dtype=np.float64)
-    for _ in range(40):
-        r0 = residual(x)
-        if np.abs(r0).max() < 1e-4:
-            break
-        J = np.stack([(residual(x + 0.1 * e) - r0) / 0.1 for e in np.eye(len(x))], axis=1)
-        step = np.linalg.solve(J.T @ J + 1e-3 * np.eye(len(x)), J.T @ r0)
-        x = x - step * min(1.0, 20.0 / max(np.abs(step).max(), 1e-12))
+    x = gauss_newton(residual, np.array([c[n] for n in arms], dtype=np.float64), 40, tol=1e-4, damping=1e-3)
     return {**c, **dict(zip(arms, x.tolist()))}
 
 
