@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from mogo_runtime.bundle.folder import Bundle
-from mogo_runtime.bundle.manifest import INT8_FIXED
+from mogo_runtime.bundle.manifest import COMPACT, INT8_FIXED
 from mogo_runtime.bundle.sampling import GREEDY
 from mogo_runtime.control import FollowPath, Steer, Steering, WalkTo
 from mogo_runtime.decoding import GenerationTask, decode_tokens
@@ -47,6 +47,7 @@ class Thresholds:
     joints_mm: float = 0.1           # end to end fp32, max joint error
     int8_token_agreement: float = 0.95  # teacher-forced: fraction of (step, level) argmaxes equal, same history
     int8_text_cosine: float = 0.98   # int8 vs fp32 text embedding
+    compact_token_agreement: float = 0.98   # the compact variant (int8-stored weights), teacher-forced, as int8's
 
 
 @dataclass
@@ -312,6 +313,24 @@ def check_int8_fixed(fp32: OrtBackend, fixed, report: Report, th: Thresholds, pr
                f"= {len(prompts)}", identical == len(prompts), fmt="{:.0f}")
 
 
+def check_compact(fp32: OrtBackend, compact, report: Report, th: Thresholds, prompts=PROMPTS) -> None:
+    """The compact variant (docs/bundle.md): as close to fp32 as its stored weights allow (teacher-forced), its text
+    embeddings too, and batch-invariant like int8_fixed."""
+    prompts, seeds = list(prompts), list(range(len(prompts)))
+    forced, _ = _teacher_forced(fp32, compact, prompts, _ort_tokens(fp32, prompts, seeds, fp32.dims.max_tokens))
+    report.add("compact vs fp32 argmax agreement, teacher-forced (step, level)", forced,
+               f">= {th.compact_token_agreement:g}", forced >= th.compact_token_agreement, fmt="{:.3f}")
+    a, b = fp32.encode_text(prompts), compact.encode_text(prompts)
+    cos = float(((a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)).min())
+    report.add("compact vs fp32 text embedding cosine (min)", cos, f">= {th.int8_text_cosine:g}",
+               cos >= th.int8_text_cosine, fmt="{:.4f}")
+    batched = _ort_tokens(compact, prompts, seeds, fp32.dims.max_tokens)
+    alone = [_ort_tokens(compact, [p], [s], fp32.dims.max_tokens)[0] for p, s in zip(prompts, seeds)]
+    identical = sum(np.array_equal(x, y) for x, y in zip(batched, alone))
+    report.add(f"compact greedy tokens, batch of {len(prompts)} vs one prompt per call (identical)", identical,
+               f"= {len(prompts)}", identical == len(prompts), fmt="{:.0f}")
+
+
 def check_ort_variants(bundle: Bundle, report: Report, prompts=PROMPTS) -> None:
     """Each ORT-format variant gives the greedy tokens of the variant it was converted from."""
     prompts, seeds = list(prompts), list(range(len(prompts)))
@@ -341,6 +360,8 @@ def verify(bundle_path: str | Path, ckpt_dir: str | Path, th: Thresholds = Thres
         check_portable(gen, open_backend(bundle, "portable", threads=2), streaming, report, th, prompts)
     if int8 and INT8_FIXED in bundle.variants:
         check_int8_fixed(fp32, open_backend(bundle, INT8_FIXED, threads=2), report, th, prompts)
+    if int8 and COMPACT in bundle.variants:
+        check_compact(fp32, open_backend(bundle, COMPACT, threads=2), report, th, prompts)
     if bundle.manifest.ort is not None:
         check_ort_variants(bundle, report, prompts)
     return report

@@ -4,24 +4,26 @@
 // (files.js).
 //
 // URL parameters: bundle (a folder relative to the repository root, or an absolute URL; default bundles/base),
-// variant (default int8 where offered, else fp32), threads (onnxruntime-web threads; more than 1 only where the
+// variant (default compact where offered, else int8, else fp32), threads (onnxruntime-web threads; more than 1 only where the
 // page is cross-origin isolated), prompt, seed.
 //
 // window.mogoPage is what the browser test reads (web/test/page.test.mjs): the motion on screen with its tokens (a
 // stream's as they are picked), its walkTo requests, the camera, and the timings.
 
-import { Bundle, urlLoader } from '../js/src/index.js';
+import { Bundle, WEIGHT_INT8, urlLoader } from '../js/src/index.js';
 import { bvhText, download, fileStem, jsonText } from './files.js';
 import { SkeletonViewer } from './viewer.js';
 import { GoalMarker, cameraState, onGroundClick } from './walk.js';
 
 const AHEAD_SECONDS = 1;   // how far a stream is decoded ahead of what is shown: a new prompt shows within this
-// Variants this runtime is known to run (its tests cover them, js/test): fp32, and int8 made by dynamic
-// quantization (run one row per call, runtime/mogo_runtime/engine.py). Any other variant (e.g. `portable`, whose
-// step graph has a fixed-size cache and a `position` input) is offered only once the worker has loaded it and
-// generated a token with it here; otherwise the page names it and says why.
-const KNOWN_VARIANTS = new Set(['fp32', 'int8']);
-const KNOWN_QUANTIZATION = new Set(['onnxruntime.quantize_dynamic', 'dynamic']);
+// Variants this runtime is known to run (its tests cover them, js/test and web/test): fp32, int8 made by dynamic
+// quantization (run one row per call, runtime/mogo_runtime/engine.py), and compact (int8-stored weights, float32
+// arithmetic: the tokens of the Python runtime, and the smallest download, so the page's default). Any other
+// variant (e.g. `portable`, whose step graph has a fixed-size cache and a `position` input) is offered only once
+// the worker has loaded it and generated a token with it here; otherwise the page names it and says why.
+const KNOWN_VARIANTS = new Set(['fp32', 'int8', 'compact']);
+const KNOWN_QUANTIZATION = new Set(['onnxruntime.quantize_dynamic', 'dynamic', WEIGHT_INT8]);
+const DEFAULT_VARIANTS = ['compact', 'int8'];   // the first offered is loaded, else the first variant offered
 
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
@@ -101,7 +103,7 @@ async function loadBundle() {
   marker = new GoalMarker(viewer.scene);
   if (m.control && page.endless) onGroundClick(viewer, walkTo);
   requestAnimationFrame(draw);
-  const variant = offered.includes(wanted) ? wanted : offered.includes('int8') ? 'int8' : offered[0];
+  const variant = offered.includes(wanted) ? wanted : DEFAULT_VARIANTS.find((v) => offered.includes(v)) ?? offered[0];
   await loadVariant(variant);
   await probeVariants(others.filter((v) => !offered.includes(v)));
 }

@@ -11,7 +11,7 @@ export { Bundle } from './bundle/folder.js';
 export { fileLoader, urlLoader, LoadError } from './bundle/io.js';
 export { parseManifest } from './bundle/manifest.js';
 export { SamplingConfig } from './bundle/sampling.js';
-export { BundleError } from './bundle/sections.js';
+export { BundleError, WEIGHT_INT8 } from './bundle/sections.js';
 export { OrtBackend, NonFiniteOutput } from './engine.js';
 export { Tokenizer, TokenizerError } from './tokenizer.js';
 export { PCG64 } from './pcg64.js';

@@ -382,7 +382,7 @@ def main(argv=None) -> int:
         return 0
     for name, path in bundles.items():
         manifest = json.loads((Path(path) / "manifest.json").read_text())
-        variants = [v for v in ("fp32", "int8", "portable", "int8_fixed") if v in manifest["variants"]]
+        variants = [v for v in ("fp32", "int8", "portable", "int8_fixed", "compact") if v in manifest["variants"]]
         # one file per variant: a bundle's variants together outgrow the longest string Node can read (512 MB)
         for v in variants:
             (args.out / f"variant-{name}-{v}.json").write_text(

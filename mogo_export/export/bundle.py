@@ -1,4 +1,4 @@
-"""Write a bundle: every graph, the tokenizer, the int8 and portable variants, their ORT-format copies and a
+"""Write a bundle: every graph, the tokenizer, the int8, portable and compact variants, their ORT-format copies and a
 manifest, atomically (docs/bundle.md).
 
     mogo-export export checkpoints/base --out bundles/base [--opset 20] [--int8 step,text_encoder]
@@ -29,11 +29,12 @@ import torch
 from onnxruntime.quantization import QuantType, quantize_dynamic
 
 from mogo_runtime.bundle.folder import sha256_file
-from mogo_runtime.bundle.manifest import INT8_FIXED, ORT_SUFFIX, PORTABLE, SCHEMA, SCHEMA_VERSION, Manifest
+from mogo_runtime.bundle.manifest import (COMPACT, INT8_FIXED, ORT_SUFFIX, PORTABLE, SCHEMA, SCHEMA_VERSION,
+                                          Manifest)
 from mogo_runtime.bundle.sampling import SamplingConfig
-from mogo_runtime.bundle.sections import (PER_ROW_INT8, PORTABLE_OPSET, GraphFile, GraphSpec, Normalization,
-                                          ControlSpec, OrtFormat, PortableSpec, Quantization, StreamingSpec, TensorSpec,
-                                          TextEncoderSpec, required_capacity)
+from mogo_runtime.bundle.sections import (PER_ROW_INT8, PORTABLE_OPSET, WEIGHT_INT8, ControlSpec, GraphFile,
+                                          GraphSpec, Normalization, OrtFormat, PortableSpec, Quantization,
+                                          StreamingSpec, TensorSpec, TextEncoderSpec, required_capacity)
 from mogo_runtime.kinematics.skeleton import get_skeleton
 from mogo_runtime.outputs.files import process_alive, write_atomic
 
@@ -47,6 +48,7 @@ from .ort_format import to_ort, write_required_operators
 from .portable import export_portable_step
 from .rowquant import quantize_per_row
 from .text_encoder import export_text_encoder, quantize_text_encoder
+from .weightquant import COMPACT_OPSET, write_compact
 
 INT8_GRAPHS = ("step", "text_encoder")  # lookup and decoder stay fp32: ConvInteger ran slower than fp32 here
 ORT_VARIANTS = ("int8", PORTABLE)       # variants also written in ORT format, for an onnxruntime minimal build
@@ -196,6 +198,11 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
                 options = quantize_step_per_row(tmp / "step.portable.onnx", tmp / "step.portable.int8.onnx")
                 variants[INT8_FIXED] = {**variants["int8"], "step": GraphFile("step.portable.int8.onnx",
                                                                              Quantization(PER_ROW_INT8, options))}
+            log(f"writing the compact variant (int8-stored weights, float32 arithmetic, opset {COMPACT_OPSET}) ...")
+            variants[COMPACT] = {}
+            for g, entry in variants[PORTABLE].items():
+                options = write_compact(tmp / entry.file, tmp / f"{g}.compact.onnx")
+                variants[COMPACT][g] = GraphFile(f"{g}.compact.onnx", Quantization(WEIGHT_INT8, options))
         ort_format = _write_ort(tmp, variants, ort, log) if ort else None
         te_meta = te.get("metadata", {})
         manifest = Manifest(

@@ -35,6 +35,22 @@ INT8_OPS = frozenset({"DynamicQuantizeLinear", "MatMulInteger", "ConvInteger", "
                       "QLinearMatMul", "QLinearConv", "DynamicQuantizeMatMul", "MatMulIntegerToFloat"})
 CONTROL_FLOW = frozenset({"If", "Loop", "Scan"})
 MAX_RANK = 8                   # Sentis tensors have at most 8 dims
+# The ai.onnx operators Unity's Inference Engine imports (the "Supported ONNX operators" table of its manual,
+# com.unity.ai.inference 2.3; Sentis 2.1 lists the same): the compact variant uses none but these. None of INT8_OPS
+# is there, nor If/Loop/Scan. Its manual recommends opset 15.
+UNITY_OPS = frozenset("""
+    Abs Acos Acosh Add And ArgMax ArgMin Asin Asinh Atan Atanh AveragePool BatchNormalization Bernoulli Cast CastLike
+    Ceil Celu Clip Compress Concat Constant ConstantOfShape Conv ConvTranspose Cos Cosh CumSum DepthToSpace Div
+    Dropout Einsum Elu Equal Erf Exp Expand EyeLike Flatten Floor Gather GatherElements GatherND Gelu Gemm
+    GlobalAveragePool GlobalMaxPool Greater GreaterOrEqual GridSample Hardmax HardSigmoid HardSwish Identity
+    InstanceNormalization IsInf IsNaN LayerNormalization LeakyRelu Less LessOrEqual Log LogSoftmax LRN LSTM MatMul Max
+    MaxPool Mean Min Mod Mul Multinomial Neg NonMaxSuppression NonZero Not OneHot Or Pad Pow PRelu RandomNormal
+    RandomNormalLike RandomUniform RandomUniformLike Range Reciprocal ReduceL1 ReduceL2 ReduceLogSum ReduceLogSumExp
+    ReduceMax ReduceMean ReduceMin ReduceProd ReduceSum ReduceSumSquare Relu Reshape Resize RoiAlign Round
+    ScatterElements ScatterND Selu Shape Shrink Sigmoid Sign Sin Sinh Size Slice Softmax Softplus Softsign
+    SpaceToDepth Split Sqrt Squeeze Sub Sum Tan Tanh ThresholdedRelu Tile TopK Transpose Trilu Unsqueeze Upsample Where
+    Xor""".split())
+UNITY_OPSET = 15
 _NEW_AT_18 = {"noop_with_empty_axes": "Reduce", "num_outputs": "Split"}   # attribute -> op (prefix) that gained it
 
 
@@ -111,6 +127,14 @@ def _decompose_layer_norm(graph: onnx.GraphProto) -> None:
     del graph.node[:]
     graph.node.extend(nodes)
     graph.initializer.extend(consts)
+
+
+def unity_problems(model: onnx.ModelProto) -> list[str]:
+    """What keeps `model` out of Unity's Inference Engine as far as this table knows: operators it does not import,
+    and the portable rules at its recommended opset. Empty when none."""
+    ops = sorted({n.op_type for n in model.graph.node if n.domain in ("", "ai.onnx")} - UNITY_OPS)
+    return portable_problems(model, UNITY_OPSET) + [f"operator {op} is not imported by Unity's Inference Engine"
+                                                    for op in ops]
 
 
 def portable_problems(model: onnx.ModelProto, opset: int) -> list[str]:

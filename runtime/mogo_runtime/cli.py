@@ -120,13 +120,13 @@ def build_parser() -> argparse.ArgumentParser:
                                        "step per tick, and write character i's motion to OUT/character_<i>.<format>. "
                                        "Each motion is, bit for bit, what `mogo stream` gives that prompt and seed on the "
                                        "same variant (and `mogo generate`'s to float rounding). Needs a "
-                                       "fixed-capacity variant: portable or int8_fixed.")
+                                       "fixed-capacity variant: portable, int8_fixed or compact.")
     crowd.add_argument("text", nargs="+", help="prompts, handed to the characters in turn")
     crowd.add_argument("-n", "--characters", type=int, help="how many characters (default: one per prompt)")
     crowd.add_argument("--seconds", type=float, required=True, help="length of every motion")
     crowd.add_argument("--seed", type=int, default=0, help="character i gets seed + i (default 0)")
     crowd.add_argument("--bundle", type=Path, help=f"bundle folder (default: $MOGO_BUNDLE or {DEFAULT_BUNDLE})")
-    crowd.add_argument("--variant", default="int8_fixed", help="portable or int8_fixed (default)")
+    crowd.add_argument("--variant", default="int8_fixed", help="portable, int8_fixed (default) or compact")
     add_sampling_args(crowd)
     crowd.add_argument("-o", "--out", type=Path, required=True, metavar="DIR", help="folder for the motion files")
     crowd.add_argument("--format", default="bvh", choices=[s.lstrip(".") for s in SAVE_FORMATS if s != ".mp4"],

@@ -16,8 +16,8 @@ A character is an endless stream (endless.StreamContext) whose frames come throu
 that stream gives it alone, whoever else is in the crowd (tests/runtime/test_crowd.py): the graphs compute each row
 on its own (checked on `base`: a row's logits and features are identical alone and in a batch of 24).
 
-The step graph must be the fixed-capacity one (`portable`, or `int8_fixed`: per-row int8, where per-tensor int8
-would make a character's numbers depend on its neighbours): each row carries its own `position`, so characters at
+The step graph must be the fixed-capacity one (`portable`; `int8_fixed`: per-row int8, where per-tensor int8
+would make a character's numbers depend on its neighbours; or `compact`: int8-stored weights, float32 arithmetic): each row carries its own `position`, so characters at
 different points of their contexts share one call. Context rebuilds feed their tokens one call each, shared by the
 characters rebuilding in the same tick; every character's last token goes into one call over the whole crowd.
 """
@@ -136,7 +136,7 @@ class Crowd:
             raise ValueError(f"a crowd steps its characters together through the fixed-capacity step graph, and "
                              f"variant {gen.variant!r} has the growing cache (whose rows must share one length) or "
                              f"runs one row per call (per-tensor int8): use MotionGenerator(..., variant='portable') "
-                             f"or variant='int8_fixed' (per-row int8)")
+                             f"variant='int8_fixed' (per-row int8) or variant='compact'")
         if not gen.endless:
             raise ValueError("this bundle was not trained for endless streams (its manifest has no 'streaming' "
                              "section): a crowd's characters stream without end")

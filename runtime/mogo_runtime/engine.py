@@ -7,7 +7,8 @@ Graphs quantized per tensor run one row per call (one prompt, one guidance branc
 activations by the range of the whole input tensor, so such a graph would give a prompt different numbers depending
 on the other prompts in its batch (measured: int8 tokens parted from a lone run's within 2-13 steps). Row by row, a
 prompt's motion depends on its seed alone, batched or not; the step's cache is then one list of arrays per row.
-Per-row int8 (`int8_fixed`) is batch-invariant and runs batched.
+Per-row int8 (`int8_fixed`) and int8-stored weights (`compact`, float32 arithmetic) are batch-invariant and run
+batched.
 """
 from __future__ import annotations
 
@@ -178,7 +179,8 @@ class FixedCache:
 class FixedCacheBackend(OrtBackend):
     """The portable variant: its step graph takes one time step per call and a cache of fixed capacity, written at
     the `position` input and returned whole (docs/bundle.md, "The portable variant"). Its step graph is never run a
-    row per call (portable is fp32, int8_fixed's step per-row int8), so rows at different positions share a call.
+    row per call (portable is fp32, int8_fixed's step per-row int8, compact's float32 on int8-stored weights), so
+    rows at different positions share a call.
 
     Same `Backend` as OrtBackend, so the loop runs unchanged: `step` on S tokens (a context rebuild) makes S calls,
     one per token, each writing its slot into the cache in place; a cache that would overflow its capacity is an

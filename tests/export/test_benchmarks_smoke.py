@@ -63,3 +63,17 @@ def test_benchmark_runs_and_reports(tiny_bundle, tiny_checkpoints, tmp_path):
     for g in goals.values():
         assert g["measure"] in md
     assert md in done.stdout                                            # the table is printed too
+
+
+def test_the_compact_benchmark_measures_every_variant(tiny_bundle, tmp_path):
+    """benchmarks.compact on the tiny bundle, Python only (Node and Chromium run in `make test-js` / `test-web`)."""
+    cmd = [sys.executable, "-m", "benchmarks.compact", "--bundle", str(tiny_bundle), "--seeds", "1", "--rounds", "1",
+           "--no-js", "--out", str(tmp_path)]
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    (path,) = tmp_path.glob("compact-*.json")
+    result = json.loads(path.read_text())
+    sizes = result["sizes_mb"]
+    assert sizes["compact"] < 0.5 * sizes["portable"] and set(result["speed"]) == {"fp32", "portable", "compact", "int8"}
+    assert 0.9 <= result["agreement"]["compact"]["teacher_forced"] <= 1.0
+    assert result["cases"]["count"] == 2 * 20 + 1 and result["cases"]["steps"] > 0

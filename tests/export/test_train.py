@@ -81,6 +81,7 @@ def test_verifier_passes_on_the_tiny_bundle(tiny_bundle, tiny_checkpoints):
     # the portable variant and the ORT-format variants are checked like the others
     assert any(n.startswith("portable step graph") for n in names) and any("torch vs ORT portable" in n for n in names)
     assert any("int8_ort vs int8" in n for n in names) and any("portable_ort vs portable" in n for n in names)
+    assert any(n.startswith("compact vs fp32 argmax") for n in names) and any("compact greedy tokens" in n for n in names)
 
 
 def test_teacher_forced_agreement_counts_argmax_changes(tiny_bundle):

@@ -88,7 +88,7 @@ def planned_cases(variants: list[str]) -> list[dict]:
     return out
 
 
-CONTROL_VARIANTS = ("fp32", "int8", "portable")
+CONTROL_VARIANTS = ("fp32", "int8", "portable", "compact")
 CONTROL_SAMPLINGS = {k: SAMPLINGS[k] for k in ("greedy", "top_p", "guided")}
 CONTROL_SECONDS = 6.0
 # [token, request, arguments]: made before the first frame of that token is read. The first lands while frames

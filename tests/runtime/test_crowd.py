@@ -17,7 +17,7 @@ PLAN = [(PROMPTS[0], 1, 0, None, (9, PROMPTS[3])), (PROMPTS[1], 2, 0, 6.0, None)
 TICKS = 60
 
 
-@pytest.fixture(scope="module", params=["portable", "int8_fixed"])
+@pytest.fixture(scope="module", params=["portable", "int8_fixed", "compact"])
 def gen(portable_toy_bundle, request):  # noqa: F811
     return MotionGenerator(portable_toy_bundle, variant=request.param)
 

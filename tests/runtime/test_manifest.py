@@ -96,7 +96,7 @@ def test_every_malformed_field_is_one_clear_error(portable_toy_bundle, manifest_
                    "model.pad_id deleted", "model.receptive_field = 0", "skeleton.offsets.0.0 = 0",
                    "normalization.mean.0 = ", "normalization.std.0 = ", "text_encoder.name = ",
                    "text_encoder.pooling deleted", "sampling_defaults", "variants.int8 deleted",
-                   "variants.int8_fixed deleted", "streaming deleted", "streaming = None", "ort.onnxruntime = ")
+                   "variants.int8_fixed deleted", "variants.compact deleted", "streaming deleted", "streaming = None", "ort.onnxruntime = ")
     # the batch dim of any graph (the portable step's too) may have another name
     symbolic_dim = re.compile(r"(graphs\.\w+|portable\.step)\.(inputs|outputs)\.0\.shape\.0 = '\w+'$")
     unexpected = [n for n in loaded if not (n.startswith(informative) or symbolic_dim.match(n)

@@ -101,7 +101,7 @@ def test_the_portable_graph_has_fixed_shapes_but_the_batch(portable_toy_bundle):
 
 def test_ort_variants_are_hashed_checked_and_run(portable_toy_bundle, tmp_path, capsys):  # noqa: F811
     bundle = Bundle.load(portable_toy_bundle)
-    assert set(bundle.variants) == {"fp32", "int8", "portable", "int8_fixed", "int8_ort", "portable_ort"}
+    assert set(bundle.variants) == {"fp32", "int8", "portable", "int8_fixed", "compact", "int8_ort", "portable_ort"}
     int8, int8_ort = (MotionGenerator(bundle, variant=v) for v in ("int8", "int8_ort"))
     for seed in (0, 1):
         want, got = (g.generate(PROMPTS[2], seed=seed).tokens for g in (int8, int8_ort))

@@ -17,9 +17,11 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import importlib.util
+import importlib
 import json
+import sys
 import tempfile
+import types
 from pathlib import Path
 
 import numpy as np
@@ -28,9 +30,9 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
 
-from mogo_runtime.bundle.manifest import INT8_FIXED, Manifest
+from mogo_runtime.bundle.manifest import COMPACT, INT8_FIXED, Manifest
 from mogo_runtime.bundle.sampling import SamplingConfig
-from mogo_runtime.bundle.sections import (PER_ROW_INT8, PORTABLE_OPSET, ControlSpec, GraphFile, GraphSpec,
+from mogo_runtime.bundle.sections import (PER_ROW_INT8, PORTABLE_OPSET, WEIGHT_INT8, ControlSpec, GraphFile, GraphSpec,
                                           ModelDims, Normalization, OrtFormat, PortableSpec, Quantization,
                                           StreamingSpec, TensorSpec, TextEncoderSpec, required_capacity)
 from mogo_runtime.kinematics.features import FeatureLayout
@@ -49,6 +51,7 @@ DIMS = ModelDims(num_levels=L, codebook_size=K, n_layers=N_LAYERS, n_heads=N_HEA
                  feature_dim=D, latent_dim=LATENT, max_tokens=MAX_TOKENS)
 CAPACITY = required_capacity(DIMS, StreamingSpec(WINDOW, REFRESH))   # the portable step's cache slots
 CONTROL = ControlSpec(horizon=2, dim=9)    # control=True: the wanted root of the next 2 tokens
+TOY_WEIGHT_INT8_MIN = 16                   # the compact variant: the toy's weights are small; quantize them all
 
 
 def _model(nodes, name, inputs, outputs, inits, meta, opset: int = OPSET) -> onnx.ModelProto:
@@ -273,12 +276,16 @@ def to_ort(folder: Path, variants: dict, names: list[str]) -> OrtFormat:
 
 def _exporter_module(name: str):
     """mogo_export/export/<name>.py loaded by path: graph rewrites that need only onnx and numpy. The runtime's
-    tests block importing mogo_export (the runtime must never need it); building a test bundle is export work."""
-    path = Path(__file__).resolve().parents[2] / "mogo_export" / "export" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(f"_toy_exporter_{name}", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    tests block importing mogo_export (the runtime must never need it); building a test bundle is export work. The
+    folder is loaded as a package of its own (not mogo_export.export), so a module's relative imports resolve."""
+    if _EXPORTER_PACKAGE not in sys.modules:
+        package = types.ModuleType(_EXPORTER_PACKAGE)
+        package.__path__ = [str(Path(__file__).resolve().parents[2] / "mogo_export" / "export")]
+        sys.modules[_EXPORTER_PACKAGE] = package
+    return importlib.import_module(f"{_EXPORTER_PACKAGE}.{name}")
+
+
+_EXPORTER_PACKAGE = "_toy_exporter"
 
 
 def control_weights(seed: int) -> np.ndarray:
@@ -322,6 +329,12 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
                              weight_type=QuantType.QInt8)
             onnx.save(quantize_per_row(onnx.load(out / "step.portable.int8.onnx")), out / "step.portable.int8.onnx")
             variants[INT8_FIXED] = {**fp32, "step": GraphFile("step.portable.int8.onnx", Quantization(PER_ROW_INT8, {}))}
+        # the compact variant as the exporter writes it; the toy's weights are small, so every weight is quantized
+        write_compact = _exporter_module("weightquant").write_compact
+        variants[COMPACT] = {}
+        for g, e in variants["portable"].items():
+            options = write_compact(out / e.file, out / f"{g}.compact.onnx", min_elements=TOY_WEIGHT_INT8_MIN)
+            variants[COMPACT][g] = GraphFile(f"{g}.compact.onnx", Quantization(WEIGHT_INT8, options))
     ort_format = to_ort(out, variants, [v for v in ("int8", "portable") if v in variants]) if ort else None
     files = {p.name: (p.stat().st_size, hashlib.sha256(p.read_bytes()).hexdigest())
              for p in sorted(out.iterdir()) if p.is_file() and p.name != "manifest.json"}

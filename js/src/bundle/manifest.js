@@ -6,7 +6,7 @@ import { shown } from '../checks.js';
 import { featureLayout } from '../kinematics/features.js';
 import { SKELETONS, storedSkeleton } from '../kinematics/skeleton.js';
 import {
-  Fields, GRAPHS, PER_ROW_INT8, cacheNames, kind, parseCache, parseFiles, parseGraph, parseModel,
+  BATCH_INVARIANT, Fields, GRAPHS, PER_ROW_INT8, WEIGHT_INT8, cacheNames, kind, parseCache, parseFiles, parseGraph, parseModel,
   parseControl, parseNormalization, parseOrt, parsePortable, parseSampling, parseStreaming, parseTca, parseTextEncoder,
   parseVariants, sameJson,
 } from './sections.js';
@@ -23,6 +23,8 @@ const GRAPH_IO = {
 const ORT_SUFFIX = '.ort';          // graph files in onnxruntime's ORT format (section `ort`)
 const PORTABLE = 'portable';        // the variant whose step graph has a fixed-capacity cache (section `portable`)
 const INT8_FIXED = 'int8_fixed';    // the same step graph in per-row int8: batch-invariant
+const COMPACT = 'compact';          // the portable variant with int8-stored weights and float32 arithmetic (WEIGHT_INT8)
+const FIXED_CACHE = [PORTABLE, INT8_FIXED, COMPACT];   // the variants whose step graph is the portable one (in some form)
 
 /**
  * Check and type a manifest read from JSON.
@@ -72,14 +74,14 @@ export function parseManifest(data, where) {
 }
 
 /**
- * Whether the variant's step graph is the portable one or its per-row int8 form (fixed-capacity cache, `position`),
- * or an ORT-format variant converted from one.
+ * Whether the variant's step graph is the portable one, its per-row int8 or its compact form (fixed-capacity cache,
+ * `position`), or an ORT-format variant converted from one.
  */
-export const fixedCache = (manifest, variant) => [PORTABLE, INT8_FIXED].includes(manifest.ort?.variants[variant] ?? variant);
+export const fixedCache = (manifest, variant) => FIXED_CACHE.includes(manifest.ort?.variants[variant] ?? variant);
 
 /** The graphs that run one row per call: those quantized per tensor, whose rows would depend on each other. */
 export const rowByRow = (manifest, variant) => new Set(GRAPHS.filter((g) => manifest.variants[variant][g].quantized
-  && manifest.variants[variant][g].quantization.method !== PER_ROW_INT8));
+  && !BATCH_INVARIANT.includes(manifest.variants[variant][g].quantization.method)));
 
 /** The inputs and outputs a variant's graph has: the portable step's differ from `graphs.step`. */
 export function graphSpec(manifest, graph, variant) {
@@ -152,8 +154,8 @@ function checkFixedCache(m, f) {
     f.fail('portable', m.portable ? "the bundle has no 'portable' variant for it to describe"
       : "missing: variant 'portable' needs this section (its step graph's inputs, outputs and capacity)");
   }
-  if (has(INT8_FIXED) && !has(PORTABLE)) {
-    f.fail(`variants.${INT8_FIXED}`, `comes with variant "${PORTABLE}", whose section 'portable' describes its step graph`);
+  for (const v of [INT8_FIXED, COMPACT]) {
+    if (has(v) && !has(PORTABLE)) f.fail(`variants.${v}`, `comes with variant "${PORTABLE}", whose section 'portable' describes its step graph`);
   }
   if (m.portable === null) return;
   const quantized = GRAPHS.find((g) => m.variants[PORTABLE][g].quantized);
@@ -162,6 +164,13 @@ function checkFixedCache(m, f) {
   if (fixedStep && fixedStep.quantization?.method !== PER_ROW_INT8) {
     f.fail(`variants.${INT8_FIXED}.step.quantization`, `its step graph is the portable step quantized per row (method `
       + `"${PER_ROW_INT8}"), got ${shown(fixedStep.quantization)}`);
+  }
+  for (const g of has(COMPACT) ? GRAPHS : []) {
+    const q = m.variants[COMPACT][g].quantization;
+    if (q?.method !== WEIGHT_INT8) {
+      f.fail(`variants.${COMPACT}.${g}.quantization`, 'every graph of the compact variant stores its weights in int8 '
+        + `(method "${WEIGHT_INT8}"), got ${shown(q)}`);
+    }
   }
   const { numLevels: L, nHeads, headDim, textDim, codebookSize: K } = m.model;
   const cache = ['float32', [L * nHeads, m.portable.capacity, headDim]];

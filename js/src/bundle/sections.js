@@ -8,6 +8,8 @@ import { SamplingConfig } from './sampling.js';
 export const GRAPHS = ['text_encoder', 'step', 'lookup', 'decoder'];
 export const DTYPES = ['float32', 'int64', 'float16'];
 export const PER_ROW_INT8 = 'mogo.per_row_dynamic';   // int8 with one activation scale per row: batchable
+export const WEIGHT_INT8 = 'mogo.weight_only_int8';   // int8 weights turned back to float32 in the graph, float32 arithmetic
+export const BATCH_INVARIANT = [PER_ROW_INT8, WEIGHT_INT8];   // methods whose rows never depend on the rest of their batch
 export const PORTABLE_OPSET = 17;   // the portable variant's graphs' opset: this or lower (LayerNormalization's first)
 const NORMALIZATION = 'decoder-output-denormalised';   // decoder.onnx multiplies by Std and adds Mean itself
 const SHA256 = /^[0-9a-f]{64}$/;
@@ -264,7 +266,8 @@ export function parseFiles(f) {
 
 /**
  * variant -> graph -> {file, quantization, quantized}. A quantization is {method, ...the exporter's options}:
- * `method` is what a reader acts on (PER_ROW_INT8 runs batched, any other one row per call: docs/bundle.md).
+ * `method` is what a reader acts on (the BATCH_INVARIANT methods run batched, any other one row per call:
+ * docs/bundle.md).
  */
 export function parseVariants(f) {
   if (!Object.hasOwn(f.obj, 'fp32')) f.fail('fp32', 'missing: every bundle has the fp32 variant');

@@ -14,9 +14,9 @@ from ..checks import Fields, kind, shown
 from ..kinematics.features import FeatureLayout
 from ..kinematics.skeleton import SKELETONS, Skeleton
 from .sampling import SamplingConfig
-from .sections import (GRAPHS, NORMALIZATION, PER_ROW_INT8, BundleError, CacheNames, ControlSpec, GraphFile,
-                       GraphSpec, ModelDims, Normalization, OrtFormat, PortableSpec, StreamingSpec, TcaSpec,
-                       TextEncoderSpec, parse_files, parse_sampling, parse_variants)
+from .sections import (GRAPHS, NORMALIZATION, PER_ROW_INT8, WEIGHT_INT8, BundleError, CacheNames, ControlSpec,
+                       GraphFile, GraphSpec, ModelDims, Normalization, OrtFormat, PortableSpec, StreamingSpec,
+                       TcaSpec, TextEncoderSpec, parse_files, parse_sampling, parse_variants)
 
 SCHEMA = "mogo-bundle"
 # 2: cache-name templates; `normalization` always an object; text_encoder numbers stored as numbers.
@@ -29,6 +29,8 @@ GRAPH_IO = {"text_encoder": ({"input_ids": 2, "attention_mask": 2}, {"text_embed
 ORT_SUFFIX = ".ort"            # graph files in onnxruntime's ORT format (section `ort`)
 PORTABLE = "portable"          # the variant whose step graph has a fixed-capacity cache (section `portable`)
 INT8_FIXED = "int8_fixed"      # the same step graph in per-row int8: batch-invariant, so a crowd can batch it
+COMPACT = "compact"            # the portable variant with int8-stored weights and float32 arithmetic (WEIGHT_INT8)
+FIXED_CACHE = (PORTABLE, INT8_FIXED, COMPACT)   # the variants whose step graph is the portable one (in some form)
 
 
 def _json(v) -> str:
@@ -76,14 +78,14 @@ class Manifest:
         return self.ort.variants.get(variant, variant) if self.ort else variant
 
     def fixed_cache(self, variant: str) -> bool:
-        """Whether the variant's step graph is the portable one or its per-row int8 form (fixed-capacity cache,
-        `position` input)."""
-        return self.source_variant(variant) in (PORTABLE, INT8_FIXED)
+        """Whether the variant's step graph is the portable one, its per-row int8 or its compact form
+        (fixed-capacity cache, `position` input)."""
+        return self.source_variant(variant) in FIXED_CACHE
 
     def row_by_row(self, variant: str) -> set[str]:
         """The variant's graphs that run one row per call: those quantized per tensor, whose numbers for a row
         would depend on the other rows of its batch (docs/bundle.md, step 2 of the loop)."""
-        return {g for g, e in self.variants[variant].items() if e.quantized and not e.quantization.per_row}
+        return {g for g, e in self.variants[variant].items() if e.quantized and not e.quantization.batch_invariant}
 
     def graph_spec(self, graph: str, variant: str) -> GraphSpec:
         """The inputs and outputs a variant's graph has: the portable step's differ from `graphs.step`."""
@@ -171,9 +173,10 @@ class Manifest:
             raise BundleError(f"{where}: field portable: " + (
                 "the bundle has no 'portable' variant for it to describe" if self.portable else
                 "missing: variant 'portable' needs this section (its step graph's inputs, outputs and capacity)"))
-        if INT8_FIXED in self.variants and PORTABLE not in self.variants:
-            raise BundleError(f"{where}: field variants.{INT8_FIXED}: comes with variant {PORTABLE!r}, whose section "
-                              f"'portable' describes its step graph")
+        for v in (INT8_FIXED, COMPACT):
+            if v in self.variants and PORTABLE not in self.variants:
+                raise BundleError(f"{where}: field variants.{v}: comes with variant {PORTABLE!r}, whose section "
+                                  f"'portable' describes its step graph")
         if self.portable is None:
             return
         quantized = [g for g, e in self.variants[PORTABLE].items() if e.quantized]
@@ -181,10 +184,15 @@ class Manifest:
             raise BundleError(f"{where}: field variants.{PORTABLE}.{quantized[0]}.quantization: the portable "
                               f"variant is fp32 only (no int8 operators)")
         step = self.variants[INT8_FIXED]["step"] if INT8_FIXED in self.variants else None
-        if step is not None and not (step.quantized and step.quantization.per_row):
+        if step is not None and not (step.quantized and step.quantization.method == PER_ROW_INT8):
             raise BundleError(f"{where}: field variants.{INT8_FIXED}.step.quantization: its step graph is the "
                               f"portable step quantized per row (method {PER_ROW_INT8!r}), got "
                               f"{step.quantization.to_dict() if step.quantization else None!r}")
+        for g, e in self.variants.get(COMPACT, {}).items():
+            if not (e.quantized and e.quantization.method == WEIGHT_INT8):
+                raise BundleError(f"{where}: field variants.{COMPACT}.{g}.quantization: every graph of the compact "
+                                  f"variant stores its weights in int8 (method {WEIGHT_INT8!r}), got "
+                                  f"{e.quantization.to_dict() if e.quantization else None!r}")
         m, spec, cap = self.model, self.portable.step, self.portable.capacity
         cache = [m.num_levels * m.n_heads, cap, m.head_dim]
         control = {"control": ("float32", [1, self.control.dim])} if self.control else {}

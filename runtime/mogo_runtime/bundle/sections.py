@@ -14,6 +14,8 @@ from .sampling import SamplingConfig
 GRAPHS = ("text_encoder", "step", "lookup", "decoder")
 DTYPES = {"float32": "tensor(float)", "int64": "tensor(int64)", "float16": "tensor(float16)"}  # -> onnxruntime
 PER_ROW_INT8 = "mogo.per_row_dynamic"   # int8 with one activation scale per row (export/rowquant.py): batchable
+WEIGHT_INT8 = "mogo.weight_only_int8"   # int8 weights turned back to float32 in the graph, float32 arithmetic
+BATCH_INVARIANT = (PER_ROW_INT8, WEIGHT_INT8)   # methods whose rows never depend on the rest of their batch
 PORTABLE_OPSET = 17            # the portable variant's graphs' opset: this or lower (LayerNormalization's first)
 NORMALIZATION = "decoder-output-denormalised"   # decoder.onnx multiplies by Std and adds Mean itself
 _SHA256 = re.compile(r"[0-9a-f]{64}")
@@ -119,15 +121,16 @@ class GraphSpec:
 
 @dataclass(frozen=True)
 class Quantization:
-    """How a variant's graph was quantized: `method` is what a reader acts on (PER_ROW_INT8 runs batched, any other
-    method one row per call: docs/bundle.md); the exporter's other options are kept as written, for people."""
+    """How a variant's graph was quantized: `method` is what a reader acts on (the BATCH_INVARIANT methods run
+    batched, any other method one row per call: docs/bundle.md); the exporter's other options are kept as written,
+    for people."""
 
     method: str
     options: dict
 
     @property
-    def per_row(self) -> bool:
-        return self.method == PER_ROW_INT8
+    def batch_invariant(self) -> bool:
+        return self.method in BATCH_INVARIANT
 
     def to_dict(self) -> dict:
         return {"method": self.method, **self.options}
