@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo_export.verify import PROMPTS as VERIFY_PROMPTS, _ort_tokens, _teacher_forced
+from mogo_export.agreement import forced_logits, greedy_tokens, teacher_forced
+from mogo_export.verify import PROMPTS as VERIFY_PROMPTS
 from mogo_runtime import MotionGenerator
 from mogo_runtime.bundle import Bundle
 from mogo_runtime.bundle.manifest import COMPACT, PORTABLE
@@ -60,12 +61,13 @@ def variant_bytes(bundle: Bundle, variant: str) -> int:
 
 def agreement(bundle: Bundle, prompts: list[str]) -> dict:
     fp32 = OrtBackend(bundle, "fp32", threads=2)
-    tokens = _ort_tokens(fp32, prompts, list(range(len(prompts))), fp32.dims.max_tokens)
+    tokens = greedy_tokens(fp32, prompts, list(range(len(prompts))), fp32.dims.max_tokens)
+    reference = forced_logits(fp32, prompts, tokens)
     base_emb = fp32.encode_text(prompts)
     out = {"prompts": len(prompts), "steps": int(sum(len(t) for t in tokens))}
     for v in (x for x in VARIANTS[1:] if x in bundle.variants):
         backend = open_backend(bundle, v, threads=2)
-        forced, _ = _teacher_forced(fp32, backend, prompts, tokens)
+        forced, _ = teacher_forced(reference, forced_logits(backend, prompts, tokens))
         emb = backend.encode_text(prompts)
         cos = (emb * base_emb).sum(1) / np.linalg.norm(emb, axis=1) / np.linalg.norm(base_emb, axis=1)
         out[v] = {"teacher_forced": float(forced), "text_cosine_min": float(cos.min())}

@@ -34,6 +34,8 @@ from mogo_runtime.decoding import GenerationTask, decode_tokens
 from mogo_runtime.engine import FixedCache, FixedCacheBackend, OrtBackend, open_backend
 from mogo_runtime.kinematics.features import recover_from_ric
 
+from .agreement import forced_logits, teacher_forced
+from .agreement import greedy_tokens as _ort_tokens
 from .export.graphs import DecoderGraph, StepGraph
 from .reference import TorchGenerator
 
@@ -115,10 +117,6 @@ def check_graphs(gen: TorchGenerator, ort_backend: OrtBackend, report: Report, t
     report.add("text_encoder graph (4 prompts, one > 128 tokens)", err, f"< {th.fp32_abs:g}", err < th.fp32_abs)
 
 
-def _ort_tokens(backend, texts, seeds, max_tokens):
-    return GenerationTask(backend, backend.bundle.skeleton, GREEDY, max_tokens).tokens(backend.encode_text(texts), seeds)
-
-
 def _agreement(a: np.ndarray, b: np.ndarray) -> float:
     """Fraction of (step, level) tokens equal, over the longer sequence (a length mismatch counts as disagreement)."""
     n = min(len(a), len(b))
@@ -126,25 +124,10 @@ def _agreement(a: np.ndarray, b: np.ndarray) -> float:
     return float(same) / max(1, max(len(a), len(b)) * a.shape[1])
 
 
-def _teacher_forced(fp32: OrtBackend, int8, prompts: list[str], sequences) -> tuple[float, float]:
-    """Step both variants, one step at a time as the runtime does, through each fp32 greedy sequence (and its
-    END step); -> (fraction of (step, level) argmaxes equal, max abs logit difference)."""
-    same = total = 0
-    worst = 0.0
-    bos = fp32.dims.bos_id
-    for text, seq in zip(prompts, sequences):
-        feed = np.concatenate([np.full((1, seq.shape[1]), bos), seq]).astype(np.int64)  # (T + 1, L)
-        runs = []
-        for backend in (fp32, int8):
-            emb, past, logits = backend.encode_text([text]), backend.empty_past(1), []
-            for t in range(len(feed)):
-                out, past = backend.step(emb, feed[None, t:t + 1], past)
-                logits.append(out[0, 0])
-            runs.append(np.stack(logits))  # (T + 1, L, K + 1)
-        same += int((runs[0].argmax(-1) == runs[1].argmax(-1)).sum())
-        total += runs[0].shape[0] * runs[0].shape[1]
-        worst = max(worst, float(np.abs(runs[0] - runs[1]).max()))
-    return same / max(1, total), worst
+def _teacher_forced(fp32: OrtBackend, other, prompts: list[str], sequences) -> tuple[float, float]:
+    """Both variants stepped through each fp32 greedy sequence (agreement.py) -> (fraction of (step, level) argmaxes
+    equal, max abs logit difference)."""
+    return teacher_forced(forced_logits(fp32, prompts, sequences), forced_logits(other, prompts, sequences))
 
 
 def check_end_to_end(gen: TorchGenerator, fp32: OrtBackend, int8, report: Report,

@@ -57,6 +57,13 @@ REQUIRED_OPERATORS = "required_operators.config"
 # streams follow their prompts 0.94 of the time (guidance 1, top_p 0.95: 0.84 on one seed), single clips 0.96
 # (0.90 before), at two step rows per token. Guidance 3 followed best (0.97) but its feet skated 4 points more
 # than the data's; 2 with top_p 0.8 stays within about 2.
+# int8 weights in 7 bits ([-64, 63]), for every CPU: onnxruntime's u8 x s8 kernel on x86 without VNNI (AVX2 and
+# AVX-512BW: Haswell to Comet Lake, Zen 1-3) adds pairs of products in int16 with saturation, and 255 * 127 * 2
+# overflows it; 255 * 64 * 2 does not. Measured on base's int8 graphs (benchmarks/cpu_kinds.py): with 8-bit weights
+# an emulated Haswell gave step logits 1.59 and text embeddings 0.023 off the native (VNNI) numbers from the same
+# inputs; with 7-bit weights, identical. The step ran as fast natively (3.30 vs 3.48 ms, 20 calls). u8 x u8 weights
+# (QUInt8) were also exact on Haswell but 1.6x slower natively (5.65 ms).
+INT8_REDUCE_RANGE = True
 SAMPLING_DEFAULTS = SamplingConfig(temperature=1.0, top_k=None, top_p=0.8, guidance=2.0)
 
 
@@ -66,10 +73,12 @@ def _graph_spec(io: dict) -> GraphSpec:
 
 
 def quantize_step(fp32: Path, int8: Path) -> dict:
-    """Dynamic int8 for the step graph: MatMuls with constant weights, QInt8, per output channel. Per-channel
-    fails at run time on 3-D weights (FACTS.md), but every transformer weight is 2-D (a test checks it); on the
-    base model it raised int8/fp32 greedy token agreement from 0.70 to 0.81 and cut joint error 44 -> 13 mm."""
-    options = {"per_channel": True, "weight_type": "QInt8", "op_types": ["MatMul", "Gemm"]}
+    """Dynamic int8 for the step graph: MatMuls with constant weights, QInt8, per output channel, 7-bit weights
+    (INT8_REDUCE_RANGE). Per-channel fails at run time on 3-D weights (FACTS.md), but every transformer weight is 2-D
+    (a test checks it); on the base model it raised int8/fp32 greedy token agreement from 0.70 to 0.81 and cut joint
+    error 44 -> 13 mm."""
+    options = {"per_channel": True, "weight_type": "QInt8", "reduce_range": INT8_REDUCE_RANGE,
+               "op_types": ["MatMul", "Gemm"]}
     # The quantizer rewrites Gemm weights in place, and the exporter's value_info for those initializers then
     # contradicts shape inference ("Inferred shape and existing shape differ"): quantize a copy without it.
     model = onnx.load(str(fp32))
@@ -78,7 +87,7 @@ def quantize_step(fp32: Path, int8: Path) -> dict:
     onnx.save(model, str(bare))
     try:
         quantize_dynamic(str(bare), str(int8), per_channel=True, weight_type=QuantType.QInt8,
-                         op_types_to_quantize=["MatMul", "Gemm"])
+                         reduce_range=INT8_REDUCE_RANGE, op_types_to_quantize=["MatMul", "Gemm"])
     finally:
         bare.unlink(missing_ok=True)
     return options
@@ -179,7 +188,8 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
         for g in int8:
             log(f"quantizing {g} to int8 ...")
             fp32, q = tmp / f"{g}.onnx", tmp / f"{g}.int8.onnx"
-            options = quantize_text_encoder(fp32, q) if g == "text_encoder" else quantize_step(fp32, q)
+            options = (quantize_text_encoder(fp32, q, INT8_REDUCE_RANGE) if g == "text_encoder"
+                       else quantize_step(fp32, q))
             variants["int8"][g] = GraphFile(q.name, Quantization("onnxruntime.quantize_dynamic", options))
         portable_spec = None
         if portable:

@@ -3,7 +3,7 @@
     from mogo_export.models.text_encoder import get_text_encoder
     from mogo_export.export.text_encoder import export_text_encoder, quantize_text_encoder
     info = export_text_encoder(get_text_encoder("all-MiniLM-L6-v2"), "bundle/")
-    quantize_text_encoder("bundle/text_encoder.onnx", "bundle/text_encoder.int8.onnx")
+    quantize_text_encoder("bundle/text_encoder.onnx", "bundle/text_encoder.int8.onnx", reduce_range=True)
 
 The graph:
     input_ids       int64   (batch, sequence)   token ids from tokenizer.json
@@ -103,16 +103,17 @@ def export_text_encoder(encoder, out_dir: str | Path, opset: int = 20) -> dict:
     }
 
 
-def quantize_text_encoder(fp32_path: str | Path, int8_path: str | Path) -> dict:
-    """Dynamic int8 (weights int8 per output channel, activations quantised at run time); returns the options.
+def quantize_text_encoder(fp32_path: str | Path, int8_path: str | Path, reduce_range: bool) -> dict:
+    """Dynamic int8 (weights int8 per output channel, 7-bit with `reduce_range`, activations quantised at run time);
+    returns the options.
 
     per_channel=True keeps cosine >= 0.98 to fp32 on MiniLM; per-tensor drops to ~0.85 (FACTS.md).
     """
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
-    options = {"per_channel": True, "weight_type": "QInt8", "reduce_range": False}
+    options = {"per_channel": True, "weight_type": "QInt8", "reduce_range": reduce_range}
     quantize_dynamic(str(fp32_path), str(int8_path), per_channel=True, weight_type=QuantType.QInt8,
-                     reduce_range=False, use_external_data_format=False)
+                     reduce_range=reduce_range, use_external_data_format=False)
     # keep the fp32 graph's facts (dim, max_length, ...) so the runtime can read either file the same way
     meta = {p.key: p.value for p in onnx.load(str(fp32_path), load_external_data=False).metadata_props}
     model = onnx.load(str(int8_path))

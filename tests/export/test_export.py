@@ -89,11 +89,12 @@ def test_manifest_describes_dims_and_symbolic_shapes(tiny):
     assert manifest["model"]["receptive_field"] == tiny["vq"].receptive_field
     step = {v["name"]: v["shape"] for v in manifest["graphs"]["step"]["inputs"]}
     assert step["tokens"][:2] == ["batch", "steps"] and step["past_key_values.0.key"][2] == "past"
-    assert set(manifest["variants"]) == {"fp32", "int8", "portable", "int8_fixed", "int8_ort", "portable_ort"}
+    assert set(manifest["variants"]) == {"fp32", "int8", "portable", "int8_fixed", "compact", "int8_ort", "portable_ort"}
     assert manifest["variants"]["int8"]["step"]["file"] == "step.int8.onnx"
     assert manifest["variants"]["int8_fixed"]["step"] == {
         "file": "step.portable.int8.onnx", "quantization": {"method": "mogo.per_row_dynamic", "per_channel": True,
-                                                            "weight_type": "QInt8", "op_types": ["MatMul", "Gemm"]}}
+                                                            "weight_type": "QInt8", "reduce_range": True,
+                                                            "op_types": ["MatMul", "Gemm"]}}
     assert manifest["variants"]["portable"]["step"]["file"] == "step.portable.onnx"
 
 
