@@ -510,9 +510,11 @@ def evaluate(req: EvaluateRequest, progress: bool = True) -> dict:
     ev_path = req.evaluator or Path(req.data) / "evaluator.pt"
     cases = load_cases(req.data, cfg.split)
     sampling = bundle_sampling(req.bundle) if req.bundle else None
-    if sampling is None:
-        from mogo_export.export.bundle import SAMPLING_DEFAULTS            # what an exported bundle would ship
-        sampling = SAMPLING_DEFAULTS
+    if sampling is None:                                                 # what an exported bundle would ship
+        from mogo_export.checkpoint import read_checkpoint
+        from mogo_export.export.bundle import SAMPLING_DEFAULTS, sampling_defaults
+        sampling = (sampling_defaults(read_checkpoint(Path(req.checkpoints) / "transformer.pt", "transformer")["meta"])
+                    if req.checkpoints else SAMPLING_DEFAULTS)
     sources = [real_source()]
     if req.checkpoints:
         sources.append(vq_source(Path(req.checkpoints) / "vq.pt"))

@@ -63,11 +63,13 @@ def _setup(args):
     if index is not None:
         source = f"{args.bundle}/{bundle.manifest.tca.file}"
     if args.torch:
-        from mogo_export.export.bundle import SAMPLING_DEFAULTS
+        from mogo_export.checkpoint import read_checkpoint
+        from mogo_export.export.bundle import sampling_defaults
         from mogo_export.reference import TorchGenerator
 
         gen = TorchGenerator.from_checkpoints(args.checkpoints)
-        sampling = bundle.manifest.sampling_defaults if bundle is not None else SAMPLING_DEFAULTS
+        meta = read_checkpoint(Path(args.checkpoints) / "transformer.pt", "transformer")["meta"]
+        sampling = bundle.manifest.sampling_defaults if bundle is not None else sampling_defaults(meta)
         encode, encoder = gen.backend.encode_text, gen.backend.text_encoder.name
         make = lambda s: torch_features(gen, s)  # noqa: E731
     else:

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mogo_runtime.control.vector import root_poses, token_controls
+from mogo_runtime.control.vector import root_poses
 from mogo_runtime.kinematics.features import recover_from_ric
 from mogo_runtime.kinematics.skeleton import get_skeleton
 from mogo_runtime.outputs.files import write_atomic
@@ -31,10 +31,11 @@ from mogo_runtime.outputs.files import write_atomic
 from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
 from .data.dataset import MotionDataset
 from .data.timelines import read_timelines
+from .distill import distill_transformer
 from .distributed import SINGLE, Group
+from .examples import ROOT, caption_table, clip_examples, load_token_data, pad_examples, window_examples
 from .models import transformer as tmodel
 from .models import vq as vqmodel
-from .models.text_encoder import CachedTextEncoder, get_text_encoder
 from .presets import DEFAULT, Schedule, get_preset  # Schedule stays importable as train.Schedule
 
 
@@ -210,7 +211,6 @@ def train_vq(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progre
 # tokens and captions
 
 TOKENS_FORMAT = 2    # 2: each clip's root poses beside its tokens (ROOT + key), for control
-ROOT = "root:"
 
 
 @torch.no_grad()
@@ -240,88 +240,8 @@ def extract_tokens(data: Path, out: Path, progress: bool = True, device: torch.d
                                                  format=np.array(TOKENS_FORMAT), **arrays))
 
 
-def _caption_table(data: Path, out: Path, encoder_name: str, write: bool = True):
-    """All captions of all splits embedded once, cached on disk. `write=False`: for a process that finds every
-    caption cached by rank 0 and must leave the file alone."""
-    encoder = CachedTextEncoder(get_text_encoder(encoder_name), out / "captions.npz")
-    table = {}
-    for split in ("train", "val", "test"):
-        for it in MotionDataset.load(data, split).items:
-            table[(split, it.clip_id)] = it.captions
-    flat = sorted({c for caps in table.values() for c in caps})
-    emb = dict(zip(flat, encoder.encode(flat).numpy()))
-    if write:
-        encoder.save()
-    return table, emb, encoder.dim
-
-
 # -----------------------------------------------------------------------------
 # RQHC-Transformer
-
-def _clip_examples(seqs, caps, emb, rng, n, cfg, by_length=None, controls=None) -> list:
-    """Whole clips: ([BOS, t...], [t..., END]) with one of the clip's captions, and the clip's controls (T + 1,
-    control_dim) when the model has control. With `by_length` (indices sorted by length) the clips are a random run
-    of similar lengths, so little compute goes to padding."""
-    if by_length is not None and len(by_length) > n:
-        start = rng.integers(len(by_length) - n + 1)
-        idx = by_length[start:start + n]
-    else:
-        idx = rng.integers(len(seqs), size=n)
-    out = []
-    for i in idx:
-        seq, c = seqs[i], caps[i]
-        tin = np.concatenate([np.full((1, cfg.num_levels), cfg.bos_id), seq])
-        tgt = np.concatenate([seq, np.full((1, cfg.num_levels), cfg.end_id)])
-        out.append((emb[c[rng.integers(len(c))]], tin, tgt, None if controls is None else controls[i]))
-    return out
-
-
-def _window_examples(timelines, emb, rng, n, cfg, streaming, controls=None) -> list:
-    """Streaming windows, the contexts an endless stream refreshes to (mogo_runtime.decoding.EndlessLoop): the
-    prompt prefix of one timed segment of a long sequence, then 1 to window + refresh of that segment's tokens,
-    ending anywhere in it, so the context often begins mid-action rather than where a motion starts (with `controls`,
-    each timeline's per-token controls, as for clips). All are targets; no END (the data's action does not end
-    there, it changes). The stream keeps nothing across a prompt switch, so windows never reach into the previous
-    segment."""
-    out = []
-    for _ in range(n):
-        t = rng.integers(len(timelines))
-        seq, segments = timelines[t]
-        first, stop, captions = segments[rng.integers(len(segments))]
-        end = int(rng.integers(first, stop))                     # the last target
-        start = max(first, end + 1 - int(rng.integers(1, streaming.window + streaming.refresh + 1)))
-        tin = np.concatenate([np.full((1, cfg.num_levels), cfg.bos_id), seq[start:end]])
-        # the control of each step: BOS picks token `start`, as an endless stream's rebuilt context does
-        out.append((emb[captions[rng.integers(len(captions))]], tin, seq[start:end + 1],
-                    None if controls is None else controls[t][start:end + 1]))
-    return out
-
-
-def _pad(examples, cfg):
-    """-> (text (B, text_dim), tokens_in (B, S, L), targets (B, S, L), lengths (B,)[, control (B, S, control_dim)]),
-    PAD-filled (the control zero-filled) on the right; the control only for a model with control."""
-    lengths = np.array([len(tgt) - 1 for _, _, tgt, _ in examples])
-    S, L = lengths.max() + 1, cfg.num_levels
-    tin = np.full((len(examples), S, L), cfg.pad_id, np.int64)
-    tgt = np.full((len(examples), S, L), cfg.pad_id, np.int64)
-    for b, (_, i, t, _) in enumerate(examples):
-        tin[b, :len(i)], tgt[b, :len(t)] = i, t
-    text = np.stack([e for e, _, _, _ in examples]).astype(np.float32)
-    batch = torch.from_numpy(text), torch.from_numpy(tin), torch.from_numpy(tgt), torch.from_numpy(lengths)
-    if not cfg.control_dim:
-        return batch
-    control = np.zeros((len(examples), S, cfg.control_dim), np.float32)
-    for b, (_, i, _, c) in enumerate(examples):
-        control[b, :len(i)] = c[:len(i)]
-    return (*batch, torch.from_numpy(control))
-
-
-def _token_units(timeline, tokens: np.ndarray, downsample: int):
-    """A timeline's segments in tokens: (tokens, [(first, stop, captions)]), segments shorter than a token dropped."""
-    segs = [(seg.first // downsample, min(len(tokens), seg.stop // downsample), seg.captions)
-            for seg in timeline.segments]
-    return tokens, [(a, b, c) for a, b, c in segs if a < b]
-
 
 class _BatchLosses(torch.nn.Module):
     """The model's loss on each batch of a step in one forward call: DistributedDataParallel reduces the
@@ -351,33 +271,19 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
     vq_payload = read_checkpoint(out / "vq.pt", "vq")
     vq_cfg = vq_payload["config"]
     with group.main_first():     # rank 0 embeds and extracts; the others read its files
-        table, emb, text_dim = _caption_table(data, out, text_encoder, write=group.is_main)
+        table, emb, text_dim = caption_table(data, out, text_encoder, write=group.is_main)
         tokens_path = extract_tokens(data, out, progress and group.is_main, group.device)
     cfg = pset.transformer_config(num_levels=vq_cfg["num_levels"], codebook_size=vq_cfg["codebook_size"],
                                   text_dim=text_dim, **overrides)
-    with np.load(tokens_path) as z:
-        tokens = {k: z[k].astype(np.int64) for k in z.files if "/" in k and not k.startswith(ROOT)}
-        controls = {k: token_controls(z[ROOT + k], vq_cfg["downsample"], cfg.control_horizon)
-                    for k in tokens} if cfg.control_dim else None
-
-    def split(name):
-        keys = sorted(k for k in tokens if k.startswith(name + "/"))
-        return ([tokens[k] for k in keys], [table[(name, k.split("/", 1)[1])] for k in keys],
-                None if controls is None else [controls[k] for k in keys])
-
-    seqs, caps, seq_controls = split("train")
-    val_seqs, val_caps, val_controls = split("val")
+    d = load_token_data(data, tokens_path, table, emb, cfg, vq_cfg["downsample"])
+    seqs, caps, seq_controls = d.seqs, d.caps, d.controls
+    val_seqs, val_caps, val_controls = d.val_seqs, d.val_caps, d.val_controls
+    timelines, timeline_controls = d.timelines, d.timeline_controls
     streaming = pset.streaming
-    timelines = [(_token_units(t, tokens[f"timeline/train/{t.clip_id}"], vq_cfg["downsample"]),
-                  None if controls is None else controls[f"timeline/train/{t.clip_id}"])
-                 for t in read_timelines(data, "train")]
-    timelines = [t for t in timelines if t[0][1]]
-    timeline_controls = None if controls is None else [c for _, c in timelines]
-    timelines = [t for t, _ in timelines]
     n_window = streaming.windows if timelines else 0
     # the loss weighs each slice by its targets, so slices of windows need not be the same size
     window_rows = group.part(n_window)
-    by_length = np.argsort([len(q) for q in seqs], kind="stable")
+    by_length = d.by_length
     max_tokens = max(len(s) for s in seqs)
     torch.manual_seed(seed)
     model = tmodel.RQHCTransformer(cfg).to(group.device)
@@ -405,12 +311,12 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
         _set_lr(opt, sched.lr_at(step))
         # clips and streaming windows as two batches: each is padded to its own longest example only (of this
         # process's slice)
-        batches = [_pad(_clip_examples(seqs, caps, emb, rng, sched.batch_size, cfg, by_length, seq_controls)[rows],
-                        cfg)]
+        clips = clip_examples(seqs, caps, emb, rng, sched.batch_size, cfg, by_length, seq_controls)[rows]
+        batches = [pad_examples(clips, cfg)]
         if n_window:
-            windows = _window_examples(timelines, emb, rng, n_window, cfg, streaming, timeline_controls)[window_rows]
+            windows = window_examples(timelines, emb, rng, n_window, cfg, streaming, timeline_controls)[window_rows]
             if windows:
-                batches.append(_pad(windows, cfg))
+                batches.append(pad_examples(windows, cfg))
         batches = [tuple(_on(model, t) for t in b) for b in batches]
         parts = net(batches)
         # the mean over every target of the global batch (of this process's slice: its share of that mean)
@@ -432,7 +338,8 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
         if group.is_main and ((step + 1) % sched.val_every == 0 or last) and val_seqs:
             model.eval()
             with torch.no_grad():
-                val_batch = _pad(_clip_examples(val_seqs, val_caps, emb, val_rng, 64, cfg, controls=val_controls), cfg)
+                val_batch = pad_examples(clip_examples(val_seqs, val_caps, emb, val_rng, 64, cfg,
+                                                       controls=val_controls), cfg)
                 vloss, vstats = model.loss(*(_on(model, t) for t in val_batch))
             meta["val"] = {"loss": vloss.item(), "acc": vstats["acc"].item()}
             bar.write(f"transformer step {step + 1}: val loss {vloss.item():.3f}, acc {vstats['acc'].item():.3f}")
@@ -455,7 +362,12 @@ def train_all(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progr
     t1 = time.perf_counter()
     train_transformer(data, out, preset, seed, progress, group=group, loss_log=loss_log)
     t2 = time.perf_counter()
+    if group.is_main:    # one process: a few hundred steps on the trained model
+        distill_transformer(data, out, preset, seed, progress)
+    group.barrier()
+    t3 = time.perf_counter()
     if group.is_main:
         print(f"trained {preset} in {out}: vq {t1 - t0:.0f} s, transformer {t2 - t1:.0f} s"
+              + (f", guidance distillation {t3 - t2:.0f} s" if pset.distill else "")
               + (f" on {group.world} processes ({group.device.type})" if group.world > 1 else ""))
     return out

@@ -67,6 +67,15 @@ INT8_REDUCE_RANGE = True
 SAMPLING_DEFAULTS = SamplingConfig(temperature=1.0, top_k=None, top_p=0.8, guidance=2.0)
 
 
+def sampling_defaults(transformer_meta: dict) -> SamplingConfig:
+    """The bundle's default sampling: a transformer distilled to give guidance g in its conditional row
+    (distill.py) samples with one row (guidance 1) at the same top_p; guidance on top stays available."""
+    if "distilled" in transformer_meta:
+        return SamplingConfig(temperature=SAMPLING_DEFAULTS.temperature, top_k=SAMPLING_DEFAULTS.top_k,
+                              top_p=SAMPLING_DEFAULTS.top_p, guidance=1.0)
+    return SAMPLING_DEFAULTS
+
+
 def _graph_spec(io: dict) -> GraphSpec:
     return GraphSpec(*(tuple(TensorSpec(d["name"], d["dtype"], tuple(d["shape"])) for d in io[k])
                        for k in ("inputs", "outputs")))
@@ -225,14 +234,16 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
                          "checkpoints": {"vq_step": vq_payload["train"].get("step"),
                                          "transformer_step": tr_payload["train"].get("step"),
                                          "preset": meta.get("preset"),
-                                         "learnable_scaling": vq.cfg.learnable_scaling}},
+                                         "learnable_scaling": vq.cfg.learnable_scaling,
+                                         # the guidance its conditional row learned (distill.py), if any
+                                         "distilled": tr_payload["meta"].get("distilled")}},
             model=dims,
             skeleton=skeleton,
             normalization=Normalization(mean=tuple(np.round(meta["mean"], 7).tolist()),
                                         std=tuple(np.round(meta["std"], 7).tolist())),
             text_encoder=TextEncoderSpec(name=encoder.name, tokenizer="tokenizer.json",
                                          max_length=int(te_meta["max_length"]), pooling=te_meta.get("pooling", "mean")),
-            sampling_defaults=SAMPLING_DEFAULTS,
+            sampling_defaults=sampling_defaults(tr_payload["meta"]),
             tca=tca,
             streaming=StreamingSpec(**trained.streaming) if trained.streaming else None,
             control=ControlSpec(tr.cfg.control_horizon, tr.cfg.control_dim) if tr.cfg.control_dim else None,

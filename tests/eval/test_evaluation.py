@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from mogo_eval import protocol as E
-from mogo_export.export.bundle import SAMPLING_DEFAULTS
+from mogo_runtime.bundle import Bundle
 from mogo_eval.cli import main
 from mogo_eval.judges import evaluator as M
 
@@ -240,7 +240,7 @@ def test_cli_evaluates_the_tiny_bundle_and_writes_every_field(tiny_checkpoints, 
     assert report["table3"] is None
     p = report["protocol"]
     assert p["repeats"] == 2 and p["items"] >= 2 and p["length"] == "gt"
-    assert p["sampling"] == SAMPLING_DEFAULTS.to_dict()                  # what bundles ship
+    assert p["sampling"] == Bundle.load(tiny_bundle).manifest.sampling_defaults.to_dict()   # what the bundle ships
     assert report["evaluator"]["dim"] == 512 and report["evaluator"]["train"]["step"] == 5
 
 

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 import torch
 
+import mogo_export.examples as examples
 import mogo_export.train as train
 from mogo_export.checkpoint import CheckpointError, build_from_checkpoint, read_checkpoint, save_checkpoint
 from mogo_export.data.dataset import MotionDataset
@@ -239,7 +240,7 @@ def test_streaming_windows_stay_inside_one_timed_segment():
     emb = {c: np.full(4, i, np.float32) for i, c in enumerate("abc")}
     # the control of token t reads t in every field, so a window's controls say which tokens they belong to
     controls = np.arange(31, dtype=np.float32)[:, None].repeat(cfg.control_dim, axis=1)
-    windows = train._window_examples([(seq, segments)], emb, np.random.default_rng(0), 400, cfg, streaming,
+    windows = examples.window_examples([(seq, segments)], emb, np.random.default_rng(0), 400, cfg, streaming,
                                      [controls])
     for text, tin, tgt, control in windows:
         segment = int(text[0])

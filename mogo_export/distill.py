@@ -1,0 +1,109 @@
+"""Guidance distillation: the transformer's conditional row taught what classifier-free guidance gives, so a runtime
+samples with one step row per token instead of two (docs/bundle.md, "Sampling").
+
+    distill_transformer(Path("data/procedural"), Path("checkpoints/base"), "base")   # train_all's last phase
+
+The teacher is the trained transformer (transformer.pt), frozen. On the training data's token sequences (whole
+clips and streaming windows, teacher-forced, without control, as training draws them: examples.py), every
+(step, level) distribution of the student's conditional row is pulled to the teacher's guided one,
+softmax(l_u + g (l_c - l_u)), by KL(guided || student), and its unconditional row (the all-zero text) to the
+teacher's own, so guidance on top of the distilled model still sharpens what it did. The student starts as the
+teacher. transformer.pt is then replaced, atomically, by the student with meta["distilled"] (the guidance it
+learned, its steps); the teacher is kept as transformer.teacher.pt. An interrupted run starts over from the
+teacher (a few minutes); a finished one is skipped.
+
+Measured on base (67 families, held-out captions, int8, top_p 0.8, 1 seed; the preset's comments): guidance 1 on
+the teacher 0.790 of whole clips; guidance 2 0.846 (two rows). Condition Contrastive Alignment (CCA: sequence
+log-likelihood ratios, matched vs shuffled captions, beta 0.02, lambda 10, 100 steps) went down to 0.764, and
+streams' spans worse; this distillation went up (preset).
+"""
+from __future__ import annotations
+
+import copy
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
+from .examples import caption_table, clip_examples, load_token_data, pad_examples, window_examples
+from .models import transformer as tmodel
+from .presets import get_preset
+
+TEACHER = "transformer.teacher.pt"
+
+
+def guided_kl(student: tmodel.RQHCTransformer, teacher: tmodel.RQHCTransformer, text: torch.Tensor,
+              tokens_in: torch.Tensor, lengths: torch.Tensor, guidance: float, uncond_weight: float) -> torch.Tensor:
+    """KL(teacher guided || student conditional) + uncond_weight x KL(teacher uncond || student uncond), averaged
+    over the valid (step, level) pairs (the first length + 1 steps)."""
+    B, S, L = tokens_in.shape
+    valid = (torch.arange(S, device=tokens_in.device) <= lengths.unsqueeze(1)).unsqueeze(-1).expand(B, S, L)
+    valid = valid.to(text.dtype)
+    zero = torch.zeros_like(text)
+    with torch.no_grad():
+        cond, uncond = teacher(text, tokens_in), teacher(zero, tokens_in)
+        targets = [torch.log_softmax(uncond + guidance * (cond - uncond), -1)]
+        if uncond_weight:
+            targets.append(torch.log_softmax(uncond, -1))
+    rows = [(text, targets[0], 1.0)] + ([(zero, targets[1], uncond_weight)] if uncond_weight else [])
+    loss = text.new_zeros(())
+    for t, target, weight in rows:
+        kl = F.kl_div(torch.log_softmax(student(t, tokens_in), -1), target, log_target=True, reduction="none").sum(-1)
+        loss = loss + weight * (kl * valid).sum() / valid.sum()
+    return loss
+
+
+def is_distilled(out: Path) -> bool:
+    path = out / "transformer.pt"
+    return path.exists() and "distilled" in read_checkpoint(path, "transformer")["meta"]
+
+
+def distill_transformer(data: Path, out: Path, preset: str, seed: int = 0, progress: bool = True) -> Path | None:
+    """The preset's guidance distillation (None: it has none) of out/transformer.pt. Returns the path."""
+    plan = get_preset(preset).distill
+    path = out / "transformer.pt"
+    if plan is None:
+        return None
+    if is_distilled(out):
+        return path
+    teacher, cfg, payload = build_from_checkpoint(path, "transformer", tmodel.TransformerConfig, tmodel.RQHCTransformer)
+    if not payload["train"].get("done"):
+        raise RuntimeError(f"{path}: the transformer has not finished training; distil it once it has")
+    shutil.copyfile(path, out / TEACHER)
+    vq_payload = read_checkpoint(out / "vq.pt", "vq")
+    table, emb, _ = caption_table(data, out, payload["meta"]["text_encoder"], write=False)
+    d = load_token_data(data, out / "tokens.npz", table, emb, cfg, vq_payload["config"]["downsample"])
+    # text-only: what the runtime runs without control, which is where guidance is used
+    none = [np.zeros((len(s) + 1, cfg.control_dim), np.float32) for s in d.seqs] if cfg.control_dim else None
+    none_tl = [np.zeros((len(s) + 1, cfg.control_dim), np.float32) for s, _ in d.timelines] if cfg.control_dim else None
+    streaming = get_preset(preset).streaming
+    student = copy.deepcopy(teacher)
+    for p in teacher.parameters():
+        p.requires_grad_(False)
+    # eval mode: no condition dropout and no dropout, so both rows are the ones a sampler runs
+    student.eval()
+    opt = torch.optim.AdamW(student.parameters(), lr=plan.lr, betas=(0.9, 0.99), weight_decay=0.0)
+    rng, by_length = np.random.default_rng(seed), d.by_length
+    torch.manual_seed(seed)
+    bar = tqdm(range(plan.steps), desc=f"distil guidance {plan.guidance:g}", disable=not progress)
+    t0 = time.perf_counter()
+    for _ in bar:
+        examples = clip_examples(d.seqs, d.caps, emb, rng, plan.batch_size, cfg, by_length, none)
+        if d.timelines and plan.windows:
+            examples += window_examples(d.timelines, emb, rng, plan.windows, cfg, streaming, none_tl)
+        text, tokens_in, _, lengths = pad_examples(examples, cfg)[:4]
+        loss = guided_kl(student, teacher, text, tokens_in, lengths, plan.guidance, plan.uncond_weight)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(student.parameters(), 1.0)
+        opt.step()
+        bar.set_postfix(kl=f"{loss.item():.4f}")
+    meta = {**payload["meta"], "distilled": {"guidance": plan.guidance, "steps": plan.steps, "lr": plan.lr,
+                                             "uncond_weight": plan.uncond_weight,
+                                             "seconds": round(time.perf_counter() - t0, 1)}}
+    return save_checkpoint(path, "transformer", cfg, student, payload["train"], meta)

@@ -1,0 +1,76 @@
+"""Guidance distillation (mogo_export/distill.py): the measure is zero where there is nothing to learn, a few steps
+bring the student's conditional row toward the teacher's guided distribution while its unconditional row stays,
+and the distilled tiny model (train_all runs the phase) ships a bundle whose default sampling runs one row."""
+import copy
+
+import numpy as np
+import torch
+
+from mogo_export.checkpoint import build_from_checkpoint, read_checkpoint
+from mogo_export.distill import TEACHER, guided_kl, is_distilled
+from mogo_export.examples import caption_table, clip_examples, load_token_data, pad_examples
+from mogo_export.models import transformer as tmodel
+from mogo_export.presets import get_preset
+from mogo_runtime import Bundle, MotionGenerator
+
+
+def _batch(cfg, seed=0, batch=6, steps=9):
+    g = torch.Generator().manual_seed(seed)
+    text = torch.randn(batch, cfg.text_dim, generator=g)
+    tokens = torch.randint(0, cfg.codebook_size, (batch, steps, cfg.num_levels), generator=g)
+    tokens[:, 0] = cfg.bos_id
+    lengths = torch.randint(2, steps, (batch,), generator=g)
+    return text, tokens, lengths
+
+
+def _models(tiny_checkpoints):
+    student, cfg, _ = build_from_checkpoint(tiny_checkpoints / "transformer.pt", "transformer",
+                                            tmodel.TransformerConfig, tmodel.RQHCTransformer)
+    teacher, _, _ = build_from_checkpoint(tiny_checkpoints / TEACHER, "transformer", tmodel.TransformerConfig,
+                                          tmodel.RQHCTransformer)
+    return student.eval(), teacher.eval(), cfg
+
+
+def test_nothing_to_learn_measures_zero(tiny_checkpoints):
+    _, teacher, cfg = _models(tiny_checkpoints)
+    text, tokens, lengths = _batch(cfg)
+    with torch.no_grad():
+        same = guided_kl(copy.deepcopy(teacher), teacher, text, tokens, lengths, guidance=1.0, uncond_weight=1.0)
+        guided = guided_kl(copy.deepcopy(teacher), teacher, text, tokens, lengths, guidance=2.0, uncond_weight=1.0)
+    assert abs(float(same)) < 1e-6 and float(guided) > 1e-4
+
+
+def test_the_distilled_tiny_model_gives_more_of_the_guided_distribution(tiny_checkpoints):
+    """train_all distilled the tiny model (its preset's few steps, on the training split): on the validation split's
+    clips, its conditional row is closer to the teacher's guided distribution than the teacher's own conditional row
+    is."""
+    assert is_distilled(tiny_checkpoints) and (tiny_checkpoints / TEACHER).exists()
+    plan = get_preset("tiny").distill
+    payload = read_checkpoint(tiny_checkpoints / "transformer.pt", "transformer")
+    assert payload["meta"]["distilled"]["guidance"] == plan.guidance
+    assert payload["meta"]["distilled"]["steps"] == plan.steps
+    student, teacher, cfg = _models(tiny_checkpoints)
+    data = tiny_checkpoints.parent / "data"
+    table, emb, _ = caption_table(data, tiny_checkpoints, payload["meta"]["text_encoder"], write=False)
+    downsample = read_checkpoint(tiny_checkpoints / "vq.pt", "vq")["config"]["downsample"]
+    d = load_token_data(data, tiny_checkpoints / "tokens.npz", table, emb, cfg, downsample)
+    rng = np.random.default_rng(0)
+    before, after = [], []
+    with torch.no_grad():
+        for _ in range(4):
+            text, tokens, _, lengths = pad_examples(clip_examples(d.val_seqs, d.val_caps, emb, rng, 8, cfg,
+                                                                  controls=d.val_controls), cfg)[:4]
+            before.append(float(guided_kl(teacher, teacher, text, tokens, lengths, plan.guidance, 0.0)))
+            after.append(float(guided_kl(student, teacher, text, tokens, lengths, plan.guidance, 0.0)))
+    print(f"validation clips, KL(guided || conditional row): teacher {np.mean(before):.4f}, "
+          f"distilled {np.mean(after):.4f}")
+    assert np.mean(after) < 0.8 * np.mean(before)
+
+
+def test_a_distilled_bundle_samples_with_one_row(tiny_bundle):
+    bundle = Bundle.load(tiny_bundle)
+    defaults = bundle.manifest.sampling_defaults
+    assert defaults.guidance == 1.0 and defaults.top_p == 0.8
+    gen = MotionGenerator(tiny_bundle, variant="fp32")
+    motion = gen.generate("a person walks forward", seed=1)               # the defaults: one row per token
+    assert len(motion.tokens) > 0
