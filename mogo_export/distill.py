@@ -20,7 +20,6 @@ streams' spans worse; this distillation went up (preset).
 from __future__ import annotations
 
 import copy
-import shutil
 import time
 from pathlib import Path
 
@@ -29,8 +28,10 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from mogo_runtime.outputs.files import write_atomic
+
 from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
-from .examples import caption_table, clip_examples, load_token_data, pad_examples, window_examples
+from .examples import caption_table, clip_examples, load_token_data, pad_examples, to_model, window_examples
 from .models import transformer as tmodel
 from .presets import get_preset
 
@@ -74,7 +75,7 @@ def distill_transformer(data: Path, out: Path, preset: str, seed: int = 0, progr
     teacher, cfg, payload = build_from_checkpoint(path, "transformer", tmodel.TransformerConfig, tmodel.RQHCTransformer)
     if not payload["train"].get("done"):
         raise RuntimeError(f"{path}: the transformer has not finished training; distil it once it has")
-    shutil.copyfile(path, out / TEACHER)
+    write_atomic(out / TEACHER, lambda f: f.write(path.read_bytes()))     # never half a file, if killed
     vq_payload = read_checkpoint(out / "vq.pt", "vq")
     table, emb, _ = caption_table(data, out, payload["meta"]["text_encoder"], write=False)
     d = load_token_data(data, out / "tokens.npz", table, emb, cfg, vq_payload["config"]["downsample"])
@@ -96,14 +97,17 @@ def distill_transformer(data: Path, out: Path, preset: str, seed: int = 0, progr
         examples = clip_examples(d.seqs, d.caps, emb, rng, plan.batch_size, cfg, by_length, none)
         if d.timelines and plan.windows:
             examples += window_examples(d.timelines, emb, rng, plan.windows, cfg, streaming, none_tl)
-        text, tokens_in, _, lengths = pad_examples(examples, cfg)[:4]
+        text, tokens_in, _, lengths = (to_model(student, t) for t in pad_examples(examples, cfg)[:4])
         loss = guided_kl(student, teacher, text, tokens_in, lengths, plan.guidance, plan.uncond_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(student.parameters(), 1.0)
         opt.step()
         bar.set_postfix(kl=f"{loss.item():.4f}")
+    # no timing in the meta: a resumed run must write the uninterrupted run's file (tests/export/test_train_kill9.py)
     meta = {**payload["meta"], "distilled": {"guidance": plan.guidance, "steps": plan.steps, "lr": plan.lr,
-                                             "uncond_weight": plan.uncond_weight,
-                                             "seconds": round(time.perf_counter() - t0, 1)}}
-    return save_checkpoint(path, "transformer", cfg, student, payload["train"], meta)
+                                             "uncond_weight": plan.uncond_weight}}
+    saved = save_checkpoint(path, "transformer", cfg, student, payload["train"], meta)
+    if progress:
+        print(f"distilled guidance {plan.guidance:g} into {path} in {time.perf_counter() - t0:.0f} s")
+    return saved

@@ -37,6 +37,13 @@ def caption_table(data: Path, out: Path, encoder_name: str, write: bool = True):
     return table, emb, encoder.dim
 
 
+def to_model(model: torch.nn.Module, t: torch.Tensor) -> torch.Tensor:
+    """`t` on the model's device, and in its dtype if floating point: float32, unless torch's default dtype was
+    another when the model was built (tests/export/test_distributed.py trains in float64)."""
+    p = next(model.parameters())
+    return t.to(p.device, p.dtype) if t.is_floating_point() else t.to(p.device)
+
+
 @dataclass
 class TokenData:
     """The training split's clips (tokens, captions, controls), the validation split's, and the training split's

@@ -33,7 +33,8 @@ from .data.dataset import MotionDataset
 from .data.timelines import read_timelines
 from .distill import distill_transformer
 from .distributed import SINGLE, Group
-from .examples import ROOT, caption_table, clip_examples, load_token_data, pad_examples, window_examples
+from .examples import (ROOT, caption_table, clip_examples, load_token_data, pad_examples, to_model,
+                       window_examples)
 from .models import transformer as tmodel
 from .models import vq as vqmodel
 from .presets import DEFAULT, Schedule, get_preset  # Schedule stays importable as train.Schedule
@@ -56,13 +57,6 @@ def _cpu(obj):
     if isinstance(obj, (list, tuple)):
         return type(obj)(_cpu(v) for v in obj)
     return obj
-
-
-def _on(model: torch.nn.Module, t: torch.Tensor) -> torch.Tensor:
-    """`t` on the model's device, and in its dtype if floating point: float32, unless torch's default dtype was
-    another when the model was built (tests/export/test_distributed.py trains in float64)."""
-    p = next(model.parameters())
-    return t.to(p.device, p.dtype) if t.is_floating_point() else t.to(p.device)
 
 
 def _log_step(path: Path | None, group: Group, **fields) -> None:
@@ -137,7 +131,7 @@ def evaluate_vq(vq: vqmodel.MoSAVQ, clips: list[np.ndarray], mean: np.ndarray, s
     ds, errs, l1 = vq.cfg.downsample, [], []
     for clip in clips:
         T = len(clip) // ds * ds
-        x = _on(vq, torch.from_numpy(clip[None, :T]))
+        x = to_model(vq, torch.from_numpy(clip[None, :T]))
         recon = vq.decode_indices(vq.encode(x))[0].cpu().numpy()
         l1.append(np.abs(recon - clip[:T]).mean())
         gt = recover_from_ric(clip[:T] * std + mean, num_joints)
@@ -183,7 +177,7 @@ def train_vq(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progre
     for step in bar:
         net.train()
         _set_lr(opt, sched.lr_at(step))
-        x = _on(vq, _crops(clips, rng, sched.batch_size, sched.window, rows))
+        x = to_model(vq, _crops(clips, rng, sched.batch_size, sched.window, rows))
         _, terms = net(x)
         opt.zero_grad(set_to_none=True)
         # each process's loss is the mean over its slice, and the slices are the same size: the gradients that
@@ -232,7 +226,7 @@ def extract_tokens(data: Path, out: Path, progress: bool = True, device: torch.d
         items = [(f"{split}/{it.clip_id}", it.features) for it in ds.items] + whole
         for key, features in tqdm(items, desc=f"tokens {split}", disable=not progress):
             T = len(features) // cfg.downsample * cfg.downsample
-            x = _on(vq, torch.from_numpy(ds.normalize(features[:T]))[None])
+            x = to_model(vq, torch.from_numpy(ds.normalize(features[:T]))[None])
             arrays[key] = vq.encode(x)[0].cpu().numpy().astype(np.int16)
             arrays[ROOT + key] = root_poses(features[:T]).astype(np.float32)    # what control is trained on
     # a file object, so np.savez does not append ".npz" to the temporary name
@@ -317,7 +311,7 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
             windows = window_examples(timelines, emb, rng, n_window, cfg, streaming, timeline_controls)[window_rows]
             if windows:
                 batches.append(pad_examples(windows, cfg))
-        batches = [tuple(_on(model, t) for t in b) for b in batches]
+        batches = [tuple(to_model(model, t) for t in b) for b in batches]
         parts = net(batches)
         # the mean over every target of the global batch (of this process's slice: its share of that mean)
         count = group.sum(sum(st["count"] for _, st in parts))
@@ -340,7 +334,7 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
             with torch.no_grad():
                 val_batch = pad_examples(clip_examples(val_seqs, val_caps, emb, val_rng, 64, cfg,
                                                        controls=val_controls), cfg)
-                vloss, vstats = model.loss(*(_on(model, t) for t in val_batch))
+                vloss, vstats = model.loss(*(to_model(model, t) for t in val_batch))
             meta["val"] = {"loss": vloss.item(), "acc": vstats["acc"].item()}
             bar.write(f"transformer step {step + 1}: val loss {vloss.item():.3f}, acc {vstats['acc'].item():.3f}")
         if (step + 1) % sched.ckpt_every == 0 or last:

@@ -20,7 +20,7 @@ from mogo_export.checkpoint import read_checkpoint
 ROOT = Path(__file__).resolve().parents[2]
 RUNS = int(os.environ.get("MOGO_TRAIN_KILL9_RUNS", "3"))
 SEED = int(os.environ.get("MOGO_TRAIN_KILL9_SEED", "0"))
-FILES = ("captions.npz", "tokens.npz", "transformer.pt", "vq.pt")   # what a finished run leaves, nothing else
+FILES = ("captions.npz", "tokens.npz", "transformer.pt", "transformer.teacher.pt", "vq.pt")   # a finished run, no more
 
 # Training with torch.save held mid-write: the first checkpoint's bytes are half written when `marker` appears,
 # and the process waits there to be killed.
