@@ -202,7 +202,11 @@ def quality_report(data: Path, ckpt_dir: Path, gif: Path | None = None, bundle: 
         from mogo_runtime.bundle.folder import Bundle
 
         variants = judged_variants(Bundle.load(bundle).variants)
-    from mogo_export.export.bundle import SAMPLING_DEFAULTS as sampling  # what bundles ship, so every row samples alike
+    from mogo_export.checkpoint import read_checkpoint
+    from mogo_export.export.bundle import sampling_defaults
+
+    # what a bundle of these checkpoints ships (one row once distilled), so every row samples alike
+    sampling = sampling_defaults(read_checkpoint(ckpt_dir / "transformer.pt", "transformer")["meta"])
 
     t0 = time.perf_counter()
     clf = train_classifier(data, ckpt_dir, progress=progress)
