@@ -3,75 +3,21 @@ pushing and pulling something heavy, carrying a box, reaching up to a shelf, cli
 opening a door.
 
 Each is a family as action.py describes, `(rng, budget) -> Action`: keyframed joint curves (curves.Keys), with
-the walking ones stepping through the gait engine (gaits.py) with their arms held still. FAMILIES lists this
+the walking ones stepping through the gait engine with their arms held still (footwork.py). FAMILIES lists this
 module's families in their fixed order (families.py appends it to the registry); WORDS holds every caption word
 they use that the shared lexicon (captions.py) lacks; LAST_ONLY names the families that do not end standing
 (none: all of them end on their feet).
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from .action import FULL_BUDGET, Action, TimeBudget
 from .captions import NUMBER_WORDS, adverb, how_often
-from .curves import Keys, ease, envelope
-from .gaits import WALK, gait
-from .pose import FPS, OTHER, SIDES, Pose, flat_foot, seconds_to_frames
-
-# the walk with the arms left to the family: no swing, no elbow bend, no lean (the families lean themselves)
-HELD_ARMS = replace(WALK, arm_swing=0.0, elbow=(0.0, 0.0), lean=0.0)
-# pushing: short flat-footed shuffling steps (a full heel raise would lift the leaning body onto its toes)
-SHUFFLE = replace(HELD_ARMS, foot=[(p, 0.5 * v) for p, v in WALK.foot])
-
-
-def _walk(pose: Pose, start: float, steps: int, cadence: float, stride: float, direction: float = 1.0,
-          style=HELD_ARMS) -> np.ndarray:
-    """Lay `steps` walking steps from `start` onto `pose` (feet side by side before and after, as in
-    locomotion._take_steps); returns the stride envelope."""
-    t = pose.t
-    stop = min(start + steps / cadence, t[-1] - 0.1)
-    amp = stride * envelope(t, start, stop, 0.7 / cadence)
-    lift = envelope(t, start - 0.3, stop + 0.3, 0.3)
-    cycles = 0.5 * steps - 0.12
-    rate = np.where((t >= start) & (t < stop), cycles / (stop - start), 0.0)
-    phase = (0.12 if direction > 0 else 0.0) + direction * np.cumsum(rate) / FPS
-    stance = gait(pose, phase, amp, style, np.zeros(pose.T), lift)
-    pose.support = np.stack([stance["left"], stance["right"]], axis=1)
-    return amp
-
-
-def _legs(pose: Pose, k: Keys, tt: np.ndarray, pitch: np.ndarray) -> None:
-    """Both legs from per-side keyed channels hip_<side> (thigh angle to the vertical, > 0 forward), knee_<side>,
-    abd_<side>, heel_<side> (heel raise); the foot stays flat on the floor, whatever the trunk's pitch. A
-    channel up_<side> > 0 lifts that foot off the floor (it carries no weight)."""
-    for side in SIDES:
-        flex = k(f"hip_{side}", tt) + pitch
-        knee = k(f"knee_{side}", tt)
-        pose.leg(side, flex=flex, knee=knee, abd=k(f"abd_{side}", tt),
-                 dorsi=flat_foot(pitch, flex, knee, lift=k(f"heel_{side}", tt)))
-        if f"up_{side}" in k.pts:
-            pose.support[:, 0 if side == "left" else 1] = k(f"up_{side}", tt) < 0.02
-
-
-def _step(k: Keys, t: float, side: str, dur: float, frm: float, to: float, other_frm: float, other_to: float,
-          knee: float = 45.0) -> float:
-    """Key one step of the `side` leg (thigh from `frm` to `to` degrees, knee lifted on the way) while the
-    other leg's thigh goes from other_frm to other_to over its planted foot; returns the end time."""
-    o = OTHER[side]
-    k.add(t, **{f"hip_{side}": frm, f"knee_{side}": 0, f"up_{side}": 0, f"hip_{o}": other_frm, f"knee_{o}": 0})
-    k.add(t + 0.08, **{f"up_{side}": 1})
-    # the knee bends first, the thigh following so the foot rises straight up off the floor before it
-    # travels, while the other leg waits to carry the body over
-    k.add(t + 0.25 * dur, **{f"hip_{side}": frm + 0.35 * knee, f"knee_{side}": 0.7 * knee, f"hip_{o}": other_frm})
-    k.add(t + 0.5 * dur, **{f"hip_{side}": 0.5 * (frm + to) + 0.3 * knee, f"knee_{side}": knee})
-    # and comes straight down onto its spot at the end
-    k.add(t + 0.8 * dur, **{f"hip_{side}": to + 0.15 * knee, f"knee_{side}": 0.3 * knee})
-    k.add(t + 0.92 * dur, **{f"up_{side}": 1})
-    k.add(t + dur, **{f"hip_{side}": to, f"knee_{side}": 0, f"up_{side}": 0, f"hip_{o}": other_to, f"knee_{o}": 0})
-    return t + dur
-
+from .curves import Keys, ease
+from .footwork import SHUFFLE, key_step, keyed_legs, walk_steps
+from .gaits import WALK
+from .pose import OTHER, SIDES, Pose, flat_foot, seconds_to_frames
 
 # --- pick_up -------------------------------------------------------------------------------------------------
 
@@ -164,7 +110,7 @@ def _throw(rng, budget: TimeBudget, over: bool) -> Action:
                         lean=0, pitch=6, crouch=12)
         k.add(t + windup, **cock)
         # the opposite foot steps forward while the arm is cocked (shoulders still turned away)
-        t = _step(k, t + windup, other, step, 0, stride, 0, -stride)
+        t = key_step(k, t + windup, other, step, 0, stride, 0, -stride)
         k.add(t, **cock)
         if over:  # over the shoulder: the elbow leads, the forearm whips through, the trunk turns and bends
             k.add(t + 0.5 * whip, flex=40, abd=82, twist=45, elbow=75, across=0, spin=0, bend=5, lean=0)
@@ -180,7 +126,7 @@ def _throw(rng, budget: TimeBudget, over: bool) -> Action:
                   crouch=0)
         t += follow
         # the back foot comes up beside the front one, the arms settle
-        t = _step(k, t, side, close, -stride, 0, stride, 0)
+        t = key_step(k, t, side, close, -stride, 0, stride, 0)
         k.add(t, **zero)
         if i < reps - 1:
             t += rest
@@ -189,7 +135,7 @@ def _throw(rng, budget: TimeBudget, over: bool) -> Action:
     pitch = k("pitch", tt)
     crouch = k("crouch", tt)
     pose.root(pitch=pitch)
-    _legs(pose, k, tt, pitch)
+    keyed_legs(pose, k, tt, pitch)
     for s in SIDES:  # the knees soften with the crouch, on top of the steps
         pose.leg(s, flex=crouch, knee=2 * crouch, dorsi=flat_foot(0, crouch, 2 * crouch))
     pose.spine(bend=2 + k("bend", tt), twist=-sgn * k("spin", tt), lean=sgn * k("lean", tt))
@@ -249,7 +195,7 @@ def push(rng, budget: TimeBudget = FULL_BUDGET) -> Action:
     pose = Pose(seconds_to_frames(end + 0.1 + set_t + lead_out))
     tt = pose.t
     on = ease((tt - lead_in) / set_t) * ease((end + 0.1 + set_t - tt) / set_t)
-    amp = _walk(pose, start, steps, cadence, stride, style=SHUFFLE)
+    amp = walk_steps(pose, start, steps, cadence, stride, style=SHUFFLE)
     drive = amp / stride
     pose.spine(bend=2 + 4 * on)
     # the body leans 20-25 degrees forward into the thing from the hips
@@ -311,7 +257,7 @@ def pull(rng, budget: TimeBudget = FULL_BUDGET) -> Action:
                      elbow=12 + reach * (8 + 70 * (1 - m)))
         pose.spine(twist=8 * fade * (w - 0.5))
     else:
-        _walk(pose, start + 0.1, steps, cadence, rng.uniform(0.45, 0.6), direction=-1.0)
+        walk_steps(pose, start + 0.1, steps, cadence, rng.uniform(0.45, 0.6), direction=-1.0)
         for side in SIDES:  # both hands together on the rope in front of the belly
             pose.arm(side, flex=reach * 78 - 38 * lean, across=reach * 12, elbow=12 + reach * (4 + 50 * lean))
     pose.head(nod=4 * lean)
@@ -342,7 +288,7 @@ def carry(rng, budget: TimeBudget = FULL_BUDGET) -> Action:
     pose = Pose(seconds_to_frames(end + 0.2 + lift_t + lead_out))
     tt = pose.t
     hold = ease((tt - lead_in) / lift_t)  # the box is held to the end
-    _walk(pose, start, steps, cadence, stride)
+    walk_steps(pose, start, steps, cadence, stride)
     pose.spine(bend=2 - 4 * hold)  # the upper body leans back a little under the weight
     for side in SIDES:  # upper arms down by the sides, forearms level, hands ~35 cm apart at waist height
         pose.arm(side, flex=hold * 14, abd=-5 * hold, across=hold * 6, elbow=12 + hold * 80)
@@ -467,21 +413,21 @@ def open_door(rng, budget: TimeBudget = FULL_BUDGET) -> Action:
     # side steps back and out of its way
     o0 = t
     k.add(t, **{f"abd_{side}": 0})
-    t = _step(k, t, side, open_t, 0, -14, 0, 6, knee=30)
+    t = key_step(k, t, side, open_t, 0, -14, 0, 6, knee=30)
     k.add(o0 + 0.5 * open_t, **{f"abd_{side}": 5})
     k.add(t, **{f"abd_{side}": 9})
     k.add(t, flex=25, abd=45, across=0, elbow=55, twist=-20, spin=12)
     # lets go; the back foot comes forward beside the other
     k.add(t + 0.5 * back_t, flex=10, abd=15, across=0, elbow=25, twist=0)
-    t = _step(k, t, side, back_t, -14, 0, 6, 0, knee=35)
+    t = key_step(k, t, side, back_t, -14, 0, 6, 0, knee=35)
     k.add(t, flex=0, abd=0, across=0, elbow=0, twist=0, spin=0, **{f"abd_{side}": 0})
     start = t + 0.05
     end = start + steps / cadence
     pose = Pose(seconds_to_frames(end + 0.15 + lead_out))
     tt = pose.t
-    _legs(pose, k, tt, np.zeros(pose.T))
+    keyed_legs(pose, k, tt, np.zeros(pose.T))
     support = pose.support.copy()
-    _walk(pose, start, steps, cadence, stride, style=WALK)
+    walk_steps(pose, start, steps, cadence, stride, style=WALK)
     pose.support &= support
     pose.relaxed()
     pose.arm(side, flex=k("flex", tt), abd=k("abd", tt), across=k("across", tt), elbow=k("elbow", tt),
