@@ -166,6 +166,11 @@ class Crowd:
         limit = self.gen.tokens_for(seconds)
         (seed,) = expand_seeds(seed, 1)
         (cond,) = self.gen.condition(check_texts([text]))      # one prompt per call: padding never mixes
+        return self.join(text, cond, seed, limit, record)
+
+    def join(self, text: str, cond, seed: int, limit: int | None, record: bool = False) -> Character:
+        """A new character conditioned on `cond` (generator.Conditioning), `limit` tokens long (None: no end): `add`
+        with the prompt already embedded (state.restore_character gives the saved embeddings)."""
         with self._lock:
             if len(self.characters) >= self.max_characters:
                 raise ValueError(f"this crowd holds at most {self.max_characters} characters (each needs "

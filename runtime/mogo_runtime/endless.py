@@ -45,6 +45,7 @@ class StreamContext:
         self.cached = 0                          # motion tokens in the context after its prefix
         self.motion = 0                          # tokens since the motion (re)started
         self.restarts = 0                        # motions ended by END and started again
+        self.resume = False                      # a restored stream (state.py): its next step feeds its context again
         self.condition(emb, limits)
 
     def condition(self, emb: np.ndarray, limits: list[int | None] | None = None) -> None:
@@ -99,11 +100,13 @@ class StreamContext:
         whether they start a new context). A new context is BOS and the last n picked tokens: n = 0 after a new
         prompt or END, `window` once the context holds window + refresh; otherwise the step feeds the last pick.
         Position i of the feed picks token count - n + i, so it reads that token's control (the last: `control`).
-        The last token fed sits in cache slot `self.cached`."""
-        if not (self.restart or self.cached == self.span):
+        The last token fed sits in cache slot `self.cached`. A restored stream (`resume`) feeds its whole context
+        again, from an empty cache, to where the step it would have made puts it: the same slots, the same numbers."""
+        resume, self.resume = self.resume and not self.restart and self.cached < self.span, False
+        if not (resume or self.restart or self.cached == self.span):
             self.cached += 1
             return self.last[None], None if self.control is None else self.control[None], False
-        n = 0 if self.restart else self.window
+        n = 0 if self.restart else self.cached + 1 if resume else self.window
         ring = (self.count - n + np.arange(n)) % self.span                     # the last n, oldest first
         bos = np.full((1, self.history.shape[1]), self.policy.dims.bos_id, np.int64)
         self.cached, self.restart = n, False

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bundle.folder import Bundle
-from .bundle.sections import GRAPHS, BundleError, ControlSpec, ModelDims
+from .bundle.sections import BundleError, ControlSpec, ModelDims
 from .checks import shown
 from .text import TextEncoderSession, check_threads, session_options
 
@@ -31,7 +31,67 @@ def open_backend(bundle: Bundle, variant: str = "fp32", threads: int = 1) -> "Or
     return (FixedCacheBackend if bundle.manifest.fixed_cache(variant) else OrtBackend)(bundle, variant, threads)
 
 
-class OrtBackend:
+class MotionDecoder:
+    """The decoding half of a bundle variant: its codebook lookup and motion decoder on onnxruntime, tokens in,
+    features out. All a client needs that only shows motion generated elsewhere (wire/client.py): no step graph, no
+    text encoder (on `base`'s compact variant, 0.9 MB of graphs against 32 MB)."""
+
+    def __init__(self, bundle: Bundle, variant: str = "fp32", threads: int = 1):
+        if variant not in bundle.manifest.variants:
+            raise ValueError(f"unknown variant {variant!r}; bundle {bundle.path} has {', '.join(bundle.variants)}")
+        self.bundle, self.variant, self.threads = bundle, variant, check_threads(threads)
+        self.dims: ModelDims = bundle.dims
+        self.one_row = bundle.manifest.row_by_row(variant)       # graphs that run one row per call
+        opts = session_options(self.threads)
+        self.lookup_session, self.decoder_session = sessions = [bundle.session(graph, variant, opts)
+                                                                for graph in ("lookup", "decoder")]
+        for graph, sess in zip(("lookup", "decoder"), sessions):
+            bundle.check_session(graph, sess, variant)
+
+    def decode(self, tokens: np.ndarray) -> np.ndarray:
+        """Codebook lookup + causal decoder: (B, T, L) tokens -> de-normalised features (B, T * downsample, D)."""
+        if self.one_row & {"lookup", "decoder"}:
+            return np.concatenate([self._decode(tokens[r:r + 1]) for r in range(len(tokens))])
+        return self._decode(tokens)
+
+    def lookup(self, tokens: np.ndarray) -> np.ndarray:
+        """The codebook lookup alone: (B, T, L) tokens -> the decoder's input (B, T, latent_dim)."""
+        (latent,) = self._run("lookup", self.lookup_session.run, ["latent"],
+                              {"tokens": np.ascontiguousarray(tokens, dtype=np.int64)})
+        return self._finite("lookup", latent)
+
+    def _decode(self, tokens: np.ndarray) -> np.ndarray:
+        (features,) = self._run("decoder", self.decoder_session.run, ["features"], {"latent": self.lookup(tokens)})
+        want = (len(tokens), tokens.shape[1] * self.dims.downsample, self.dims.feature_dim)
+        if features.shape != want:   # a wrong model.downsample would otherwise drop or invent frames silently
+            raise BundleError(f"{self.bundle.graph_path('decoder', self.variant)}: decoded {tokens.shape[1]} tokens "
+                              f"to {features.shape[1:]} frames x features; manifest model.downsample "
+                              f"{self.dims.downsample} and model.feature_dim {self.dims.feature_dim} promise {want[1:]}")
+        return self._finite("decoder", features)                                # (B, T * downsample, D)
+
+    def _run(self, graph: str, run, *args):
+        """`run(*args)` of `graph`'s session; onnxruntime refusing to finish it (an output it cannot allocate, shapes
+        that do not fit) is a BundleError naming the graph, as the bundle's graphs are what is wrong."""
+        try:
+            return run(*args)
+        except Exception as e:      # onnxruntime's own error types (Fail, InvalidArgument, ...; a RuntimeError from a
+            # run with IOBinding): `run` is onnxruntime's, so nothing else raises those here
+            if type(e).__module__ != "onnxruntime.capi.onnxruntime_pybind11_state" and type(e) is not RuntimeError:
+                raise
+            raise BundleError(f"{self.bundle.graph_path(graph, self.variant)}: onnxruntime could not run the {graph} "
+                              f"graph ({shown(str(e), 300)}); the bundle is broken") from None
+
+    def _finite(self, graph: str, out: np.ndarray) -> np.ndarray:
+        """`out`, or NonFiniteOutput naming the graph: NaN or inf must never reach a motion, a file or a stream
+        (a present cache is not checked: its NaN shows in the next step's logits). Costs microseconds a call."""
+        if not np.isfinite(out).all():
+            raise NonFiniteOutput(f"{self.bundle.graph_path(graph, self.variant)}: the {graph} graph produced NaN or "
+                                  f"inf ({int((~np.isfinite(out)).sum())} of {out.size} values); the bundle is "
+                                  f"broken (its weights or its export)")
+        return out
+
+
+class OrtBackend(MotionDecoder):
     """One CPU session per graph of one bundle variant, every call batched (graphs quantized per tensor: a row per
     call, see the module docstring).
 
@@ -43,13 +103,9 @@ class OrtBackend:
     """
 
     def __init__(self, bundle: Bundle, variant: str = "fp32", threads: int = 1):
-        if variant not in bundle.manifest.variants:
-            raise ValueError(f"unknown variant {variant!r}; bundle {bundle.path} has {', '.join(bundle.variants)}")
-        self.bundle, self.variant, self.threads = bundle, variant, check_threads(threads)
-        self.dims: ModelDims = bundle.dims
+        super().__init__(bundle, variant, threads)
         manifest = bundle.manifest
         self.control: ControlSpec | None = manifest.control     # the step graph's control input; None: none
-        self.one_row = manifest.row_by_row(variant)       # graphs that run one row per call
         files = manifest.graph_file("text_encoder", variant).file, manifest.text_encoder.tokenizer
         try:
             self.text = TextEncoderSession(*map(bundle.read_verified, files), self.threads,
@@ -60,11 +116,9 @@ class OrtBackend:
             raise BundleError(f"{bundle.graph_path('text_encoder', variant)}: embeds to {self.text.dim} values and "
                               f"cuts at {self.text.settings.max_length} tokens; manifest model.text_dim is "
                               f"{self.dims.text_dim}, text_encoder.max_length {manifest.text_encoder.max_length}")
-        opts = session_options(self.threads)
-        self.step_session, self.lookup_session, self.decoder_session = sessions = [
-            bundle.session(graph, variant, opts) for graph in ("step", "lookup", "decoder")]
+        self.step_session = bundle.session("step", variant, session_options(self.threads))
         # the sessions we run are the ones checked against the manifest (Bundle.load for a variant does not)
-        for graph, sess in zip(GRAPHS, (self.text.session, *sessions)):
+        for graph, sess in (("text_encoder", self.text.session), ("step", self.step_session)):
             bundle.check_session(graph, sess, variant)
         self.past_names = manifest.past_names
         self.output_names = ["logits", *manifest.present_names]
@@ -123,49 +177,6 @@ class OrtBackend:
                               f"{out[1].shape} for {steps} step(s) after {past[0].shape[2]}; the manifest's model says "
                               f"{(rows, steps, d.num_levels, d.codebook_size + 1)} and {cache}")
         return self._finite("step", out[0]), out[1:]                            # logits (B, S, L, K + 1), presents
-
-    def decode(self, tokens: np.ndarray) -> np.ndarray:
-        """Codebook lookup + causal decoder: (B, T, L) tokens -> de-normalised features (B, T * downsample, D)."""
-        if self.one_row & {"lookup", "decoder"}:
-            return np.concatenate([self._decode(tokens[r:r + 1]) for r in range(len(tokens))])
-        return self._decode(tokens)
-
-    def lookup(self, tokens: np.ndarray) -> np.ndarray:
-        """The codebook lookup alone: (B, T, L) tokens -> the decoder's input (B, T, latent_dim)."""
-        (latent,) = self._run("lookup", self.lookup_session.run, ["latent"],
-                              {"tokens": np.ascontiguousarray(tokens, dtype=np.int64)})
-        return self._finite("lookup", latent)
-
-    def _decode(self, tokens: np.ndarray) -> np.ndarray:
-        (features,) = self._run("decoder", self.decoder_session.run, ["features"], {"latent": self.lookup(tokens)})
-        want = (len(tokens), tokens.shape[1] * self.dims.downsample, self.dims.feature_dim)
-        if features.shape != want:   # a wrong model.downsample would otherwise drop or invent frames silently
-            raise BundleError(f"{self.bundle.graph_path('decoder', self.variant)}: decoded {tokens.shape[1]} tokens "
-                              f"to {features.shape[1:]} frames x features; manifest model.downsample "
-                              f"{self.dims.downsample} and model.feature_dim {self.dims.feature_dim} promise {want[1:]}")
-        return self._finite("decoder", features)                                # (B, T * downsample, D)
-
-    def _run(self, graph: str, run, *args):
-        """`run(*args)` of `graph`'s session; onnxruntime refusing to finish it (an output it cannot allocate, shapes
-        that do not fit) is a BundleError naming the graph, as the bundle's graphs are what is wrong."""
-        try:
-            return run(*args)
-        except Exception as e:      # onnxruntime's own error types (Fail, InvalidArgument, ...; a RuntimeError from a
-            # run with IOBinding): `run` is onnxruntime's, so nothing else raises those here
-            if type(e).__module__ != "onnxruntime.capi.onnxruntime_pybind11_state" and type(e) is not RuntimeError:
-                raise
-            raise BundleError(f"{self.bundle.graph_path(graph, self.variant)}: onnxruntime could not run the {graph} "
-                              f"graph ({shown(str(e), 300)}); the bundle is broken") from None
-
-    def _finite(self, graph: str, out: np.ndarray) -> np.ndarray:
-        """`out`, or NonFiniteOutput naming the graph: NaN or inf must never reach a motion, a file or a stream
-        (a present cache is not checked: its NaN shows in the next step's logits). Costs microseconds a call."""
-        if not np.isfinite(out).all():
-            raise NonFiniteOutput(f"{self.bundle.graph_path(graph, self.variant)}: the {graph} graph produced NaN or "
-                                  f"inf ({int((~np.isfinite(out)).sum())} of {out.size} values); the bundle is "
-                                  f"broken (its weights or its export)")
-        return out
-
 
 @dataclass(frozen=True)
 class FixedCache:

@@ -67,18 +67,24 @@ class Bundle:
         return list(self.manifest.variants)
 
     @classmethod
-    def load(cls, path: str | Path, variant: str | None = None) -> "Bundle":
+    def load(cls, path: str | Path, variant: str | None = None, graphs: tuple[str, ...] = GRAPHS) -> "Bundle":
         """The bundle in folder `path`. Without `variant` every listed file is checked now: hashed, and each graph
         opened and held to the manifest's inputs and outputs. With `variant`, only that variant's files must be
         there, at their sizes; their bytes are checked as they are read, each once (an int8 generator never reads
-        the 90 MB fp32 text encoder: cold start ~1.9 s -> ~0.2 s on base, benchmarks/NOTES.md)."""
+        the 90 MB fp32 text encoder: cold start ~1.9 s -> ~0.2 s on base, benchmarks/NOTES.md). `graphs`: of that
+        variant, the graphs used (a decode-only client ships the lookup and the decoder alone)."""
         bundle = cls(Path(path), read_manifest(path))
         if variant is not None and variant not in bundle.manifest.variants:
             raise BundleError(f"{path}: unknown variant {variant!r}; this bundle has {', '.join(bundle.variants)}")
+        unknown = sorted(set(graphs) - set(GRAPHS))
+        if unknown:
+            raise ValueError(f"unknown graphs {unknown}; a bundle's graphs are {', '.join(GRAPHS)}")
         graph_files = {e.file for gs in bundle.manifest.variants.values() for e in gs.values()}
-        used = graph_files if variant is None else {e.file for e in bundle.manifest.variants[variant].values()}
+        used = graph_files if variant is None else {e.file for g, e in bundle.manifest.variants[variant].items()
+                                                    if g in graphs}
+        extras = variant is None or set(graphs) == set(GRAPHS)     # the tokenizer, the TCA index: prompts' files
         for name in bundle.manifest.files:
-            if name in used or name not in graph_files:
+            if name in used or (extras and name not in graph_files):
                 if variant is None and name not in graph_files:   # graphs are hashed as their sessions open
                     bundle.read_verified(name)
                 else:

@@ -66,10 +66,17 @@ class Ease(NamedTuple):
         return self.phi + a, x + self.px + self.sx * f, z + self.pz + self.sz * f
 
 
+PLANS_KEPT = 64    # a token-stream writer (wire/tap.py) reads the plans every token; more unread is an error there
+
+
 class RootWarp:
     def __init__(self):
         self.eases: deque[Ease] = deque([Ease(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)], maxlen=3)
         self.active = False                       # no correction yet: frames pass through untouched
+        # `plan`'s arguments as given, newest last, and how many there were: a client that replays them places
+        # frames where this warp does (the token stream's WARP records)
+        self.plans: deque[tuple[int, int, float, float, float, float, float]] = deque(maxlen=PLANS_KEPT)
+        self.planned = 0
 
     def _warp(self, frame: int) -> tuple[float, float, float]:
         for ease in reversed(self.eases):
@@ -91,6 +98,9 @@ class RootWarp:
     def plan(self, start: int, frames: int, pose: np.ndarray, turn: float, shift) -> None:
         """From frame `start`: ease in a turn of GAIN * `turn` rad about `pose` (x, z, where it stands) and a shift
         of GAIN * `shift` (x, z) over `frames` frames, bounded by MAX_TURN and MAX_SHIFT a frame."""
+        self.plans.append((start, frames, float(pose[0]), float(pose[1]), float(turn), float(shift[0]),
+                           float(shift[1])))
+        self.planned += 1
         turn = min(max(GAIN * turn, -MAX_TURN * frames), MAX_TURN * frames)
         sx, sz = GAIN * float(shift[0]), GAIN * float(shift[1])
         norm = math.sqrt(sx * sx + sz * sz)

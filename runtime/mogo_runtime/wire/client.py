@@ -1,0 +1,140 @@
+"""A decode-only client: tokens in, frames out, with the bundle's lookup and decoder graphs alone (no step graph,
+no text encoder: on `base`'s compact variant 0.9 MB of graphs instead of 32 MB).
+
+    client = MotionClient("bundles/base", variant="compact")     # the variant the tokens were generated with
+    for message in connection:                                   # token-stream records (wire/format.py)
+        for ident, frames in client.receive(message).items():
+            show(ident, frames.joints)                           # (n, J, 3) metres, y up
+
+A character's frames are made as a generator makes them (decoding.FrameMaker: the causal decoder's window, the root
+integrated, planted toes held; then the root corrections of a steered character, replayed from its WARP records),
+so on the same machine they are the generating runtime's joints bit for bit. A game-owned root (`set_root`) is not
+in the stream: each machine puts the frames on the capsule its own game replicates.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..bundle.folder import Bundle
+from ..control.warp import RootWarp
+from ..decoding import FrameMaker, Frames, check_chunk
+from ..engine import MotionDecoder
+from .format import END, PROMPT, START, Event, Hello, Record, RecordReader, Tokens, Warp, WireError, decoder_id
+
+MAX_CHARACTERS = 100_000     # characters one client follows at once
+
+
+@dataclass
+class ClientCharacter:
+    """One character as a client knows it: its prompt, the next token it expects, its frames so far."""
+
+    ident: int
+    text: str
+    frames: FrameMaker
+    next_seq: int
+    warp: RootWarp = field(default_factory=RootWarp)
+    ended: bool = False
+
+
+class MotionClient:
+    """Follows the characters of one token stream. `chunk`: tokens per decode, as a generator's stream's (frames
+    are the same bits whatever the chunk)."""
+
+    def __init__(self, bundle: Bundle | str | Path, variant: str = "fp32", threads: int = 1, chunk: int = 1):
+        self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle, variant, ("lookup", "decoder"))
+        self.decoder = MotionDecoder(self.bundle, variant, threads)
+        self.dims, self.skeleton, self.chunk = self.bundle.dims, self.bundle.skeleton, check_chunk(chunk)
+        self.id = decoder_id(self.bundle.manifest, variant)
+        self.reader = RecordReader()
+        self.characters: dict[int, ClientCharacter] = {}
+        self.hello: Hello | None = None
+
+    def receive(self, data: bytes) -> dict[int, Frames]:
+        """Bytes of the stream (whole records or not) -> the new frames of each character they complete."""
+        return self.apply(self.reader.feed(data))
+
+    def apply(self, records: list[Record]) -> dict[int, Frames]:
+        out: dict[int, list[Frames]] = {}
+        for record in records:
+            if isinstance(record, Hello):
+                self._hello(record)
+            elif self.hello is None:
+                raise WireError("a record before the stream's HELLO")
+            elif isinstance(record, Tokens):
+                c = self._character(record.character)
+                if record.seq != c.next_seq:
+                    raise WireError(f"character {c.ident}: token {record.seq} where {c.next_seq} was next "
+                                    f"({'a token was lost' if record.seq > c.next_seq else 'a token came twice'})")
+                if (record.codes >= self.dims.codebook_size).any():
+                    raise WireError(f"character {c.ident}: a code outside the codebook ({self.dims.codebook_size})")
+                for token in record.codes:
+                    n = c.frames.push(token)
+                    if n:
+                        out.setdefault(c.ident, []).append(self._frames(c, n))
+                c.next_seq += len(record.codes)
+            elif isinstance(record, Warp):
+                c = self._character(record.character)
+                self._flush(c, out)     # the frames before it were placed without it
+                c.warp.plan(record.frame, record.frames, np.array(record.pose), record.turn, record.shift)
+            elif isinstance(record, Event):
+                self._event(record, out)
+        return {ident: _joined(chunks) for ident, chunks in out.items()}
+
+    def _hello(self, hello: Hello) -> None:
+        d = self.dims
+        if (hello.levels, hello.codebook_size, hello.downsample) != (d.num_levels, d.codebook_size, d.downsample):
+            raise WireError(f"the stream's tokens are {hello.levels} levels of {hello.codebook_size} codes, "
+                            f"{hello.downsample} frames each; this bundle's are {d.num_levels} of {d.codebook_size}, "
+                            f"{d.downsample}")
+        if hello.decoder_id != self.id:
+            raise WireError(f"the stream was generated for decoder {hello.decoder_id.hex()}, this client has "
+                            f"{self.id.hex()} ({self.decoder.variant} of {self.bundle.path}): open the bundle and "
+                            f"variant the server runs")
+        self.hello = hello
+
+    def _event(self, event: Event, out: dict[int, list[Frames]]) -> None:
+        if event.event == START:
+            old = self.characters.get(event.character)
+            if old is not None and not old.ended:
+                raise WireError(f"character {event.character} started twice")
+            if len(self.characters) >= MAX_CHARACTERS:
+                raise WireError(f"more than {MAX_CHARACTERS} characters in one stream")
+            maker = FrameMaker(self.dims, self.skeleton, self.chunk)
+            # frame numbers as the generator's (WARP records name frames); a character that started before the
+            # client joined decodes from an empty window, at the origin: its joints are not the generator's
+            maker.frames = event.seq * self.dims.downsample
+            self.characters[event.character] = ClientCharacter(event.character, event.text, maker, event.seq)
+            return
+        c = self._character(event.character)
+        if event.event == PROMPT:
+            c.text = event.text
+        elif event.event == END:
+            self._flush(c, out)
+            c.ended = True
+            del self.characters[c.ident]
+
+    def _character(self, ident: int) -> ClientCharacter:
+        c = self.characters.get(ident)
+        if c is None:
+            raise WireError(f"character {ident}: records before its START (or after its END)")
+        return c
+
+    def _flush(self, c: ClientCharacter, out: dict[int, list[Frames]]) -> None:
+        n = c.frames.due(final=True)
+        if n:
+            out.setdefault(c.ident, []).append(self._frames(c, n))
+
+    def _frames(self, c: ClientCharacter, n: int) -> Frames:
+        frames = c.frames.frames_from(self.decoder.decode(c.frames.window(n)[None])[0])
+        frames.joints = c.warp.joints(frames.index, frames.joints)
+        return frames
+
+
+def _joined(chunks: list[Frames]) -> Frames:
+    if len(chunks) == 1:
+        return chunks[0]
+    return Frames(chunks[0].index, np.concatenate([f.features for f in chunks]),
+                  np.concatenate([f.joints for f in chunks]))

@@ -1,0 +1,212 @@
+"""The token-stream format: a character's motion as the integers it is, for a client that decodes it
+(docs/bundle.md, "Token streams").
+
+A stream is a sequence of records, each self-delimiting, all integers little-endian:
+
+    HELLO   u8 1, b"MOGT", u8 version, u8 levels, u16 codebook_size, u8 downsample, 8 bytes decoder id
+    TOKENS  u8 2, u32 character, u32 seq, u8 count, count * levels u16 codes      (seq: the first token's index)
+    EVENT   u8 3, u32 character, u32 seq, u8 event, u16 n, n bytes UTF-8 text       (seq: the token it applies from)
+    WARP    u8 4, u32 character, u32 frame, u16 frames, 5 f64: pose x, pose z, turn, shift x, shift z
+
+A HELLO comes first: the client checks it has the decoder the tokens were made for (`decoder_id`: the decoder and
+lookup graphs' sha256, so a compact client refuses an fp32 stream, whose frames would differ in the last bits).
+Every character's tokens come with consecutive sequence numbers from its START; a gap, a repeat or a token after
+END is an error, never a frame made from the wrong context. A WARP carries a steered character's root correction
+(control/warp.py: `RootWarp.plan`'s arguments) so the client places frames where the generator placed them.
+
+A WebSocket message holds whole records; `RecordReader` also reassembles records cut anywhere (a TCP stream, a file).
+"""
+from __future__ import annotations
+
+import hashlib
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..bundle.manifest import Manifest
+
+MAGIC = b"MOGT"
+VERSION = 1
+HELLO, TOKENS, EVENT, WARP = 1, 2, 3, 4
+START, PROMPT, CONTROL, RESTART, END = 1, 2, 3, 4, 5       # events
+EVENT_NAMES = {START: "start", PROMPT: "prompt", CONTROL: "control", RESTART: "restart", END: "end"}
+MAX_TOKENS_PER_RECORD = 255
+MAX_TEXT_BYTES = 4096        # an event's text: a prompt (at most 1,000 characters) or a control request as JSON
+MAX_RECORD_BYTES = 1 + 4 + 4 + 1 + 2 + MAX_TEXT_BYTES     # the largest record of any kind (an EVENT)
+
+_HELLO = struct.Struct("<B4sBBHB8s")
+_TOKENS = struct.Struct("<BIIB")
+_EVENT = struct.Struct("<BIIBH")
+_WARP = struct.Struct("<BIIH5d")
+
+
+class WireError(ValueError):
+    """A token stream that breaks the format, or one this client cannot decode."""
+
+
+@dataclass(frozen=True)
+class Hello:
+    levels: int
+    codebook_size: int
+    downsample: int
+    decoder_id: bytes
+    version: int = VERSION
+
+
+@dataclass(frozen=True)
+class Tokens:
+    character: int
+    seq: int
+    codes: np.ndarray        # (count, levels) int64
+
+
+@dataclass(frozen=True)
+class Event:
+    character: int
+    seq: int
+    event: int
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class Warp:
+    character: int
+    frame: int
+    frames: int
+    pose: tuple[float, float]
+    turn: float
+    shift: tuple[float, float]
+
+
+Record = Hello | Tokens | Event | Warp
+
+
+def decoder_id(manifest: Manifest, variant: str) -> bytes:
+    """8 bytes naming the lookup and decoder graphs of `variant`: equal ids decode tokens to the same frames."""
+    files = [manifest.graph_file(graph, variant).file for graph in ("lookup", "decoder")]
+    return hashlib.sha256("".join(manifest.files[f][1] for f in files).encode()).digest()[:8]
+
+
+def hello_for(manifest: Manifest, variant: str) -> Hello:
+    d = manifest.model
+    return Hello(d.num_levels, d.codebook_size, d.downsample, decoder_id(manifest, variant))
+
+
+def encode(record: Record) -> bytes:
+    """One record's bytes."""
+    if isinstance(record, Tokens):
+        codes = np.asarray(record.codes)
+        if codes.ndim != 2 or not 1 <= len(codes) <= MAX_TOKENS_PER_RECORD:
+            raise WireError(f"a TOKENS record holds 1 to {MAX_TOKENS_PER_RECORD} tokens (count, levels), "
+                            f"got {codes.shape}")
+        if codes.min() < 0 or codes.max() > 0xFFFF:
+            raise WireError("token codes are u16 on the wire")
+        return _TOKENS.pack(TOKENS, record.character, record.seq, len(codes)) + codes.astype("<u2").tobytes()
+    if isinstance(record, Event):
+        text = record.text.encode("utf-8")
+        if len(text) > MAX_TEXT_BYTES or record.event not in EVENT_NAMES:
+            raise WireError(f"an EVENT has a known event and at most {MAX_TEXT_BYTES} bytes of text")
+        return _EVENT.pack(EVENT, record.character, record.seq, record.event, len(text)) + text
+    if isinstance(record, Warp):
+        return _WARP.pack(WARP, record.character, record.frame, record.frames, *record.pose, record.turn,
+                          *record.shift)
+    if isinstance(record, Hello):
+        return _HELLO.pack(HELLO, MAGIC, record.version, record.levels, record.codebook_size, record.downsample,
+                           record.decoder_id)
+    raise TypeError(f"not a record: {type(record).__name__}")
+
+
+def _size(data: bytes | memoryview, at: int, levels: int) -> int | None:
+    """The length of the record starting at data[at], or None when its length field is not in `data` yet."""
+    kind = data[at]
+    if kind == TOKENS:
+        return None if len(data) < at + _TOKENS.size else _TOKENS.size + 2 * levels * data[at + _TOKENS.size - 1]
+    if kind == EVENT:
+        if len(data) < at + _EVENT.size:
+            return None
+        return _EVENT.size + int.from_bytes(data[at + _EVENT.size - 2:at + _EVENT.size], "little")
+    if kind == WARP:
+        return _WARP.size
+    if kind == HELLO:
+        return _HELLO.size
+    raise WireError(f"byte {at}: unknown record type {kind}")
+
+
+def _decode(data, at: int, size: int, levels: int) -> Record:
+    kind = data[at]
+    if kind == TOKENS:
+        _, character, seq, count = _TOKENS.unpack_from(data, at)
+        if count == 0:
+            raise WireError(f"byte {at}: a TOKENS record of no tokens")
+        codes = np.frombuffer(data, "<u2", count * levels, at + _TOKENS.size).astype(np.int64).reshape(count, levels)
+        return Tokens(character, seq, codes)
+    if kind == EVENT:
+        _, character, seq, event, n = _EVENT.unpack_from(data, at)
+        if event not in EVENT_NAMES:
+            raise WireError(f"byte {at}: unknown event {event}")
+        if n > MAX_TEXT_BYTES:
+            raise WireError(f"byte {at}: an event's text of {n} bytes (at most {MAX_TEXT_BYTES})")
+        try:
+            text = bytes(data[at + _EVENT.size:at + size]).decode("utf-8")
+        except UnicodeDecodeError:
+            raise WireError(f"byte {at}: an event's text is not UTF-8") from None
+        return Event(character, seq, event, text)
+    if kind == WARP:
+        _, character, frame, frames, px, pz, turn, sx, sz = _WARP.unpack_from(data, at)
+        if not np.all(np.isfinite([px, pz, turn, sx, sz])):
+            raise WireError(f"byte {at}: a WARP of non-finite numbers")
+        return Warp(character, frame, frames, (px, pz), turn, (sx, sz))
+    _, magic, version, lv, codebook, downsample, ident = _HELLO.unpack_from(data, at)
+    if magic != MAGIC:
+        raise WireError(f"byte {at}: not a mogo token stream (magic {magic!r})")
+    if version != VERSION:
+        raise WireError(f"byte {at}: token-stream version {version}; this client reads version {VERSION}")
+    return Hello(lv, codebook, downsample, ident, version)
+
+
+class RecordReader:
+    """Bytes in, whole records out: `feed(data)` -> the records completed by `data`. The levels per token come from
+    the stream's HELLO (`levels` until then, for a reader that knows them); a record cut short stays buffered."""
+
+    def __init__(self, levels: int | None = None, max_buffer: int = 1 << 20):
+        self.levels, self.max_buffer = levels, max_buffer
+        self.buffer = bytearray()
+        self.offset = 0       # bytes consumed before the buffer, for messages
+
+    def feed(self, data: bytes) -> list[Record]:
+        self.buffer += data
+        if len(self.buffer) > self.max_buffer:
+            raise WireError(f"{len(self.buffer)} bytes buffered without a whole record (at most {self.max_buffer})")
+        out, at, view = [], 0, bytes(self.buffer)
+        while at < len(view):
+            if view[at] != HELLO and self.levels is None:
+                raise WireError(f"byte {self.offset + at}: a {view[at]} record before the stream's HELLO")
+            size = _size(view, at, self.levels or 0)
+            if size is None or at + size > len(view):
+                break
+            try:
+                record = _decode(view, at, size, self.levels or 0)
+            except WireError as e:
+                raise WireError(f"{e} (stream offset {self.offset})") from None
+            if isinstance(record, Hello):
+                self.levels = record.levels
+            out.append(record)
+            at += size
+        del self.buffer[:at]
+        self.offset += at
+        return out
+
+    @property
+    def pending(self) -> int:
+        """Bytes of a record not yet whole."""
+        return len(self.buffer)
+
+
+def read_message(data: bytes, levels: int | None = None) -> list[Record]:
+    """The records of one message that holds whole records (a WebSocket message); a cut record is an error."""
+    reader = RecordReader(levels, max_buffer=max(len(data), 1))
+    records = reader.feed(data)
+    if reader.pending:
+        raise WireError(f"the message ends inside a record ({reader.pending} bytes left over)")
+    return records
