@@ -13,6 +13,14 @@ import { StepPolicy, makeRngs } from './policy.js';
 
 export const MAX_CHUNK = 1024;   // tokens per decode; more only delays frames (and the window is allocated up front)
 
+/** Tokens per decode: an int in [1, MAX_CHUNK], else a RangeError (decoding.py check_chunk). */
+export function checkChunk(chunk) {
+  if (!Number.isInteger(chunk) || chunk < 1 || chunk > MAX_CHUNK) {
+    throw new RangeError(`chunk must be an int in [1, ${MAX_CHUNK}], got ${chunk}`);
+  }
+  return chunk;
+}
+
 /**
  * Yields {picked (B, L), alive (B)} once per time step until every prompt has ended. alive[b] is 0 from the step
  * where prompt b chose END (its tokens that step are meaningless). With `fixedTokens` END is forbidden and every
@@ -68,11 +76,8 @@ export async function decodeTokens(backend, tokenSeqs) {
  */
 export class FrameMaker {
   constructor(dims, skeleton, chunk = 1) {
-    if (!Number.isInteger(chunk) || chunk < 1 || chunk > MAX_CHUNK) {
-      throw new RangeError(`chunk must be an int in [1, ${MAX_CHUNK}], got ${chunk}`);
-    }
     this.dims = dims;
-    this.chunk = chunk;
+    this.chunk = checkChunk(chunk);
     this.tokens = new Int32Array((dims.receptiveField + chunk) * dims.numLevels);
     this.count = 0;     // tokens pushed
     this.pending = 0;   // tokens pushed whose frames were not made yet

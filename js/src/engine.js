@@ -1,5 +1,5 @@
-// The graphs of one bundle variant on onnxruntime: the backend the token loop drives
-// (runtime/mogo_runtime/engine.py: OrtBackend and FixedCacheBackend).
+// The graphs of one bundle variant on onnxruntime: the backend the token loop drives, and its decoding half alone
+// for a decode-only client (runtime/mogo_runtime/engine.py: MotionDecoder, OrtBackend and FixedCacheBackend).
 //
 // Arrays are flat typed arrays in row-major order with their shape given beside them. The KV cache is the
 // list of `present.*` tensors a step returns, fed back as the next step's `past_key_values.*` as they are.
@@ -18,41 +18,74 @@ export class NonFiniteOutput extends BundleError {}
 
 const MAX_THREADS = 64;
 const TEXT_BATCH = 64;   // prompts per text-encoder call, as TextEncoderSession.encode
+const DECODING = ['lookup', 'decoder'];   // the graphs a decode-only client opens
 
-export class OrtBackend {
+/**
+ * The decoding half of a bundle variant: its codebook lookup and motion decoder, tokens in, features out
+ * (engine.py MotionDecoder). All a client that only shows motion generated elsewhere needs (wire/client.js): it
+ * reads no step graph, no text encoder and no tokenizer.
+ */
+export class MotionDecoder {
+  /** The lookup and decoder sessions of `variant` of a Bundle on `ort` (onnxruntime-node or -web), each checked. */
+  static async open(bundle, variant, { ort, threads = 1, providers }) {
+    checkOpen(bundle, variant, threads);
+    const sessions = await openSessions(bundle, variant, DECODING, { ort, threads, providers });
+    return new MotionDecoder(ort, bundle.manifest, variant, sessions, rowByRow(bundle.manifest, variant));
+  }
+
+  /** `rowByRow`: the graphs that run one row per call (those quantized per tensor). */
+  constructor(ort, manifest, variant, sessions, rowByRow) {
+    Object.assign(this, { ort, manifest, dims: manifest.model, variant, sessions, rowByRow });
+  }
+
+  /** Codebook lookup + causal decoder: tokens (B, T, L), valid codes -> de-normalised features (B, T * ds, D). */
+  async decode(tokens, batch) {
+    if (!this.rowByRow.has('lookup') && !this.rowByRow.has('decoder')) return this.#decode(tokens, batch);
+    const outs = [];
+    for (let r = 0; r < batch; r++) outs.push(await this.#decode(rowOf(tokens, batch, r), 1));
+    return concat(outs);
+  }
+
+  async #decode(tokens, batch) {
+    const L = this.dims.numLevels;
+    const ids = new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [batch, tokens.length / (batch * L), L]);
+    const { latent } = await runGraph(this, 'lookup', { tokens: ids });
+    finite(this, 'lookup', latent.data);
+    const { features } = await runGraph(this, 'decoder', { latent });
+    const T = tokens.length / (batch * L), want = [batch, T * this.dims.downsample, this.dims.featureDim];
+    if (!sameDims(features.dims, want)) {   // a wrong model.downsample would drop or invent frames
+      throw new BundleError(`${graphFile(this, 'decoder')}: decoded ${T} tokens to `
+        + `[${features.dims.slice(1)}] frames x features; manifest model.downsample ${this.dims.downsample} and `
+        + `model.feature_dim ${this.dims.featureDim} promise [${want.slice(1)}]`);
+    }
+    return finite(this, 'decoder', features.data);
+  }
+
+  /** Free the sessions' native memory (the backend cannot be used afterwards). */
+  async release() {
+    for (const session of Object.values(this.sessions)) await session.release?.();
+  }
+}
+
+export class OrtBackend extends MotionDecoder {
   /** The sessions of `variant` ('fp32', 'int8', ...) of a Bundle on `ort` (onnxruntime-node or -web), each checked. */
   static async open(bundle, variant, { ort, threads = 1, providers }) {
     const manifest = bundle.manifest;
-    if (!Object.hasOwn(manifest.variants, variant)) {
-      throw new BundleError(`unknown variant ${shown(variant)}; bundle ${oneLine(bundle.where)} has `
-        + `${oneLine(Object.keys(manifest.variants).join(', '), 200)}`);
-    }
-    if (!Number.isInteger(threads) || threads < 1 || threads > MAX_THREADS) {
-      throw new RangeError(`threads must be an int in [1, ${MAX_THREADS}], got ${threads}`);
-    }
+    checkOpen(bundle, variant, threads);
     const tokenizerFile = manifest.textEncoder.tokenizer;
     const tokenizer = Tokenizer.fromText(await bundle.read(tokenizerFile), bundle.path(tokenizerFile));
     if (tokenizer.maxLength !== manifest.textEncoder.maxLength) {
       throw new BundleError(`${tokenizer.source}: cuts at ${tokenizer.maxLength} tokens; manifest text_encoder.max_length is `
         + `${manifest.textEncoder.maxLength}`);
     }
-    const sessions = {};
-    for (const graph of GRAPHS) {
-      const { file } = manifest.variants[variant][graph];
-      const bytes = await bundle.read(file);
-      try {
-        sessions[graph] = await createSession(ort, bytes, { threads, providers });
-      } catch (e) {
-        throw new BundleError(`${bundle.path(file)}: onnxruntime cannot load it (${oneLine(e.message, 300)})`);
-      }
-      bundle.checkSession(graph, file, sessions[graph], variant);
-    }
+    const sessions = await openSessions(bundle, variant, GRAPHS, { ort, threads, providers });
     return new OrtBackend(ort, manifest, variant, tokenizer, sessions, rowByRow(manifest, variant));
   }
 
   /** `rowByRow`: the graphs that run one row per call (those quantized per tensor). */
   constructor(ort, manifest, variant, tokenizer, sessions, rowByRow) {
-    Object.assign(this, { ort, manifest, dims: manifest.model, variant, tokenizer, sessions, rowByRow });
+    super(ort, manifest, variant, sessions, rowByRow);
+    this.tokenizer = tokenizer;
     this.control = manifest.control;   // the step graph's control input {horizon, dim}; null: none
     this.cacheHeads = this.dims.numLevels * this.dims.nHeads;   // past: [rows, L * n_heads, past, head_dim]
     // the portable variant: one time step per call into a cache of fixed capacity, written at `position`
@@ -66,43 +99,17 @@ export class OrtBackend {
     const size = this.rowByRow.has('text_encoder') ? 1 : TEXT_BATCH;
     for (let i = 0; i < texts.length; i += size) {
       const { inputIds, attentionMask, dims } = this.tokenizer.encodeBatch(texts.slice(i, i + size));
-      const { text_embedding: emb } = await this.#run('text_encoder', {
+      const { text_embedding: emb } = await runGraph(this, 'text_encoder', {
         input_ids: new this.ort.Tensor('int64', inputIds, dims),
         attention_mask: new this.ort.Tensor('int64', attentionMask, dims),
       });
       if (!sameDims(emb.dims, [dims[0], E])) {
-        throw new BundleError(`${this.#file('text_encoder')}: returned embeddings [${emb.dims}] for ${dims[0]} prompt(s); `
+        throw new BundleError(`${graphFile(this, 'text_encoder')}: returned embeddings [${emb.dims}] for ${dims[0]} prompt(s); `
           + `manifest model.text_dim is ${E}`);
       }
-      out.set(this.#finite('text_encoder', emb.data), i * E);
+      out.set(finite(this, 'text_encoder', emb.data), i * E);
     }
     return out;
-  }
-
-  #file(graph) { return oneLine(this.manifest.variants[this.variant][graph].file); }
-
-  /**
-   * The `graph` session run on `feed`. onnxruntime failing to (an output it cannot allocate, shapes that do not
-   * fit) is a BundleError naming the graph, as the bundle's graphs are what is wrong (engine.py _run).
-   */
-  async #run(graph, feed) {
-    try {
-      return await this.sessions[graph].run(feed);
-    } catch (e) {
-      throw new BundleError(`${this.#file(graph)}: onnxruntime could not run the ${graph} graph (${oneLine(e.message, 300)}); `
-        + 'the bundle is broken');
-    }
-  }
-
-  /** `data`, or a NonFiniteOutput naming the graph: NaN or inf must never reach a motion (as the Python engine). */
-  #finite(graph, data) {
-    let bad = 0;
-    for (let i = 0; i < data.length; i++) if (!Number.isFinite(data[i])) bad++;
-    if (bad) {
-      throw new NonFiniteOutput(`${this.#file(graph)}: the ${graph} graph produced NaN or inf (${bad} of ${data.length} `
-        + 'values); the bundle is broken (its weights or its export)');
-    }
-    return data;
   }
 
   /** The cache of `rows` rows before the first step: every past tensor empty. */
@@ -163,7 +170,7 @@ export class OrtBackend {
     // a model with control reads where the character should go; all zeros: no control (control/vector.js)
     if (control !== null) feed.control = new this.ort.Tensor('float32', control, [rows, steps, this.control.dim]);
     this.manifest.pastNames.forEach((name, i) => { feed[name] = past[i]; });
-    const out = await this.#run('step', feed), presents = this.manifest.presentNames.map((name) => out[name]);
+    const out = await runGraph(this, 'step', feed), presents = this.manifest.presentNames.map((name) => out[name]);
     // What the graph returns is held to the manifest every step: a cache that grew by more than the steps fed (or
     // logits of another width) would be read wrongly, or fill the memory over minutes. The loop reads the last
     // position's logits: a graph may return only those. The fixed cache keeps its shape.
@@ -171,11 +178,11 @@ export class OrtBackend {
     const cache = [rows, this.cacheHeads, position === null ? before + steps : this.capacity, headDim];
     if (n !== rows || !(returned >= 1 && returned <= steps) || !sameDims(levels, [L, K + 1])
       || presents.some((p) => !sameDims(p.dims, cache))) {
-      throw new BundleError(`${this.#file('step')}: returned logits [${out.logits.dims}] and a cache `
+      throw new BundleError(`${graphFile(this, 'step')}: returned logits [${out.logits.dims}] and a cache `
         + `[${presents[0].dims}] for ${steps} step(s) after ${before}; the manifest's model says [${rows}, ${steps}, ${L}, `
         + `${K + 1}] and [${cache}]`);
     }
-    return { logits: this.#finite('step', out.logits.data), past: presents };
+    return { logits: finite(this, 'step', out.logits.data), past: presents };
   }
 
   /** The portable step: S tokens are S calls, each writing its slot; logits come back as (rows, S, L, K + 1). */
@@ -200,36 +207,61 @@ export class OrtBackend {
     }
     return { logits, past: { tensors: cache, length: past.length + S } };
   }
-
-  /** Codebook lookup + causal decoder: tokens (B, T, L), valid codes -> de-normalised features (B, T * ds, D). */
-  async decode(tokens, batch) {
-    if (!this.rowByRow.has('lookup') && !this.rowByRow.has('decoder')) return this.#decode(tokens, batch);
-    const outs = [];
-    for (let r = 0; r < batch; r++) outs.push(await this.#decode(rowOf(tokens, batch, r), 1));
-    return concat(outs);
-  }
-
-  async #decode(tokens, batch) {
-    const L = this.dims.numLevels;
-    const ids = new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [batch, tokens.length / (batch * L), L]);
-    const { latent } = await this.#run('lookup', { tokens: ids });
-    this.#finite('lookup', latent.data);
-    const { features } = await this.#run('decoder', { latent });
-    const T = tokens.length / (batch * L), want = [batch, T * this.dims.downsample, this.dims.featureDim];
-    if (!sameDims(features.dims, want)) {   // a wrong model.downsample would drop or invent frames
-      throw new BundleError(`${this.#file('decoder')}: decoded ${T} tokens to `
-        + `[${features.dims.slice(1)}] frames x features; manifest model.downsample ${this.dims.downsample} and `
-        + `model.feature_dim ${this.dims.featureDim} promise [${want.slice(1)}]`);
-    }
-    return this.#finite('decoder', features.data);
-  }
-
-  /** Free the sessions' native memory (the backend cannot be used afterwards). */
-  async release() {
-    for (const session of Object.values(this.sessions)) await session.release?.();
-  }
 }
 
 const sameDims = (dims, want) => dims.length === want.length && dims.every((d, i) => d === want[i]);
 
 const rowOf = (array, rows, r) => array.slice((r * array.length) / rows, ((r + 1) * array.length) / rows);
+
+/** A variant the bundle has, and a thread count onnxruntime is given. */
+function checkOpen(bundle, variant, threads) {
+  if (!Object.hasOwn(bundle.manifest.variants, variant)) {
+    throw new BundleError(`unknown variant ${shown(variant)}; bundle ${oneLine(bundle.where)} has `
+      + `${oneLine(Object.keys(bundle.manifest.variants).join(', '), 200)}`);
+  }
+  if (!Number.isInteger(threads) || threads < 1 || threads > MAX_THREADS) {
+    throw new RangeError(`threads must be an int in [1, ${MAX_THREADS}], got ${threads}`);
+  }
+}
+
+/** graph -> session, for `graphs` of the variant: each file read (size and hash checked), loaded and checked. */
+async function openSessions(bundle, variant, graphs, { ort, threads, providers }) {
+  const sessions = {};
+  for (const graph of graphs) {
+    const { file } = bundle.manifest.variants[variant][graph];
+    const bytes = await bundle.read(file);
+    try {
+      sessions[graph] = await createSession(ort, bytes, { threads, providers });
+    } catch (e) {
+      throw new BundleError(`${bundle.path(file)}: onnxruntime cannot load it (${oneLine(e.message, 300)})`);
+    }
+    bundle.checkSession(graph, file, sessions[graph], variant);
+  }
+  return sessions;
+}
+
+const graphFile = (backend, graph) => oneLine(backend.manifest.variants[backend.variant][graph].file);
+
+/**
+ * The `graph` session of a backend run on `feed`. onnxruntime failing to (an output it cannot allocate, shapes that
+ * do not fit) is a BundleError naming the graph, as the bundle's graphs are what is wrong (engine.py _run).
+ */
+async function runGraph(backend, graph, feed) {
+  try {
+    return await backend.sessions[graph].run(feed);
+  } catch (e) {
+    throw new BundleError(`${graphFile(backend, graph)}: onnxruntime could not run the ${graph} graph `
+      + `(${oneLine(e.message, 300)}); the bundle is broken`);
+  }
+}
+
+/** `data`, or a NonFiniteOutput naming the graph: NaN or inf must never reach a motion (as the Python engine). */
+function finite(backend, graph, data) {
+  let bad = 0;
+  for (let i = 0; i < data.length; i++) if (!Number.isFinite(data[i])) bad++;
+  if (bad) {
+    throw new NonFiniteOutput(`${graphFile(backend, graph)}: the ${graph} graph produced NaN or inf (${bad} of `
+      + `${data.length} values); the bundle is broken (its weights or its export)`);
+  }
+  return data;
+}

@@ -5,7 +5,8 @@
 #   2. build the toy bundles of tests/runtime/toy_bundle.py (with and without a streaming section, with the
 #      portable, int8_fixed and ORT-format variants, and with control) in a temporary folder, with the repository's
 #      venv, and broken copies of them (test/make_broken.py);
-#   3. write what the Python runtime gives on them (js/test/make_reference.py);
+#   3. write what the Python runtime gives on them (js/test/make_reference.py), and the token streams it writes and
+#      decodes (js/test/make_wire_reference.py);
 #   4. run `node --test`, which compares and prints the parity numbers (lines starting "parity:").
 #
 # Environment:
@@ -58,6 +59,7 @@ for extra in ${MOGO_JS_BUNDLES:-}; do
 done
 
 "$PY" "$JS/test/make_reference.py" --out "$WORK/reference" "${BUNDLES[@]}"
+"$PY" "$JS/test/make_wire_reference.py" --out "$WORK/reference" --compact "$WORK/toy-portable" --steered "$WORK/toy-control"
 cd "$JS"
 MOGO_JS_REFERENCE="$WORK/reference" MOGO_JS_TOY="$WORK/toy" MOGO_JS_TOY_CONTROL="$WORK/toy-control" \
   MOGO_JS_BROKEN="$WORK/broken" node --test test/*.test.mjs

@@ -35,6 +35,7 @@ from .control.commands import Request, parse_request
 from .outputs.extras import MissingExtra
 from .outputs.motion import RIG_FORMATS, SAVE_FORMATS, check_output_path
 from .outputs.rig import RIGS, load_rig
+from .serve import command as serve_command
 from .text import MAX_PROMPT_CHARS, check_texts, load_tokenizer
 
 DEFAULT_BUNDLE = "bundles/base"
@@ -138,6 +139,8 @@ def build_parser() -> argparse.ArgumentParser:
                           description="The rigs shipped with mogo (for --rig); a rig file of your own works the same.")
     rigs.add_argument("rig", nargs="?", help="print this rig's file (a name, or a rig file to check)")
     rigs.set_defaults(run=cmd_rigs)
+
+    serve_command.add_parser(sub)
 
     info = sub.add_parser("info", help="what a bundle holds, and whether its files are intact")
     info.add_argument("bundle", nargs="?", type=Path, help=f"bundle folder (default: $MOGO_BUNDLE or {DEFAULT_BUNDLE})")

@@ -107,11 +107,18 @@ export class LoadError extends Error {
   name = 'LoadError';
 }
 
-/** Lowercase hex SHA-256 (WebCrypto: the same call in Node 20+ and browsers). */
-export async function sha256Hex(bytes) {
-  const digest = await globalThis.crypto.subtle.digest('SHA-256', bytes);
-  return Array.from(new Uint8Array(digest), (b) => b.toString(16).padStart(2, '0')).join('');
+/** SHA-256, 32 bytes (WebCrypto: the same call in Node 20+ and browsers). */
+export async function sha256(bytes) {
+  return new Uint8Array(await globalThis.crypto.subtle.digest('SHA-256', bytes));
 }
+
+/** Lowercase hex SHA-256. */
+export async function sha256Hex(bytes) {
+  return toHex(await sha256(bytes));
+}
+
+/** Bytes as lowercase hex, two digits each. */
+export const toHex = (bytes) => Array.from(bytes, (b) => b.toString(16).padStart(2, '0')).join('');
 
 /**
  * An onnxruntime session (`ort`: onnxruntime-node or -web; `providers`: ['cpu'] in Node, ['wasm'] in a browser) for

@@ -61,6 +61,11 @@ def parse_request(line: str) -> Request:
         obj = json.loads(line)
     except (ValueError, RecursionError) as e:      # RecursionError: nesting deeper than the parser goes
         raise ValueError(f"a request line is not JSON: {str(e)[:120]}") from None
+    return request_from(obj)
+
+
+def request_from(obj) -> Request:
+    """A request already parsed from JSON (a line of `mogo stream --follow`, a motion server's message)."""
     if not isinstance(obj, dict):
         raise ValueError(f"a request must be a JSON object, got {type(obj).__name__}")
     unknown = sorted(set(obj) - KEYS)

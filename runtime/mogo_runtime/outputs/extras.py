@@ -18,7 +18,10 @@ import importlib.util
 # output extension -> (pip extra, [(module, the package that installs it)])
 EXTRAS = {".gif": ("preview", [("PIL", "pillow")]),
           ".mp4": ("video", [("PIL", "pillow"), ("imageio_ffmpeg", "imageio-ffmpeg")]),
-          ".glb": ("gltf", [("pygltflib", "pygltflib")])}
+          ".glb": ("gltf", [("pygltflib", "pygltflib")]),
+          # not files: the motion server (`mogo serve`) and its Ray Serve deployment
+          "serve": ("serve", [("websockets", "websockets")]),
+          "ray": ("ray", [("websockets", "websockets"), ("ray", "ray[serve]")])}
 
 
 class MissingExtra(ImportError):
@@ -32,5 +35,6 @@ def require(suffix: str) -> None:
     extra, modules = EXTRAS[suffix]
     missing = [package for module, package in modules if importlib.util.find_spec(module) is None]
     if missing:
-        raise MissingExtra(f"writing {suffix} files needs {' and '.join(missing)}, which this install lacks: "
+        what = f"writing {suffix} files" if suffix.startswith(".") else f"mogo {suffix}"
+        raise MissingExtra(f"{what} needs {' and '.join(missing)}, which this install lacks: "
                            f"pip install \"mogo-runtime[{extra}]\"")

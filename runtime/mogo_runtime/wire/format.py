@@ -7,6 +7,7 @@ A stream is a sequence of records, each self-delimiting, all integers little-end
     TOKENS  u8 2, u32 character, u32 seq, u8 count, count * levels u16 codes      (seq: the first token's index)
     EVENT   u8 3, u32 character, u32 seq, u8 event, u16 n, n bytes UTF-8 text       (seq: the token it applies from)
     WARP    u8 4, u32 character, u32 frame, u16 frames, 5 f64: pose x, pose z, turn, shift x, shift z
+    JOINTS  u8 5, u32 character, u32 frame, u16 n, u8 joints, n * joints * 3 f32    (a server's, on request)
 
 A HELLO comes first: the client checks it has the decoder the tokens were made for (`decoder_id`: the decoder and
 lookup graphs' sha256, so a compact client refuses an fp32 stream, whose frames would differ in the last bits).
@@ -28,17 +29,17 @@ from ..bundle.manifest import Manifest
 
 MAGIC = b"MOGT"
 VERSION = 1
-HELLO, TOKENS, EVENT, WARP = 1, 2, 3, 4
+HELLO, TOKENS, EVENT, WARP, JOINTS = 1, 2, 3, 4, 5
 START, PROMPT, CONTROL, RESTART, END = 1, 2, 3, 4, 5       # events
 EVENT_NAMES = {START: "start", PROMPT: "prompt", CONTROL: "control", RESTART: "restart", END: "end"}
 MAX_TOKENS_PER_RECORD = 255
 MAX_TEXT_BYTES = 4096        # an event's text: a prompt (at most 1,000 characters) or a control request as JSON
-MAX_RECORD_BYTES = 1 + 4 + 4 + 1 + 2 + MAX_TEXT_BYTES     # the largest record of any kind (an EVENT)
 
 _HELLO = struct.Struct("<B4sBBHB8s")
 _TOKENS = struct.Struct("<BIIB")
 _EVENT = struct.Struct("<BIIBH")
 _WARP = struct.Struct("<BIIH5d")
+_JOINTS = struct.Struct("<BIIHB")
 
 
 class WireError(ValueError):
@@ -79,7 +80,14 @@ class Warp:
     shift: tuple[float, float]
 
 
-Record = Hello | Tokens | Event | Warp
+@dataclass(frozen=True)
+class Joints:
+    character: int
+    frame: int
+    joints: np.ndarray       # (n, J, 3) float32 metres, y up
+
+
+Record = Hello | Tokens | Event | Warp | Joints
 
 
 def decoder_id(manifest: Manifest, variant: str) -> bytes:
@@ -111,6 +119,11 @@ def encode(record: Record) -> bytes:
     if isinstance(record, Warp):
         return _WARP.pack(WARP, record.character, record.frame, record.frames, *record.pose, record.turn,
                           *record.shift)
+    if isinstance(record, Joints):
+        j = np.asarray(record.joints, "<f4")
+        if j.ndim != 3 or j.shape[2] != 3 or not 1 <= len(j) <= 0xFFFF or not 1 <= j.shape[1] <= 255:
+            raise WireError(f"a JOINTS record holds (1 to 65535 frames, 1 to 255 joints, 3), got {j.shape}")
+        return _JOINTS.pack(JOINTS, record.character, record.frame, len(j), j.shape[1]) + j.tobytes()
     if isinstance(record, Hello):
         return _HELLO.pack(HELLO, MAGIC, record.version, record.levels, record.codebook_size, record.downsample,
                            record.decoder_id)
@@ -128,6 +141,11 @@ def _size(data: bytes | memoryview, at: int, levels: int) -> int | None:
         return _EVENT.size + int.from_bytes(data[at + _EVENT.size - 2:at + _EVENT.size], "little")
     if kind == WARP:
         return _WARP.size
+    if kind == JOINTS:
+        if len(data) < at + _JOINTS.size:
+            return None
+        n = int.from_bytes(data[at + 9:at + 11], "little")
+        return _JOINTS.size + 12 * n * data[at + _JOINTS.size - 1]
     if kind == HELLO:
         return _HELLO.size
     raise WireError(f"byte {at}: unknown record type {kind}")
@@ -157,6 +175,12 @@ def _decode(data, at: int, size: int, levels: int) -> Record:
         if not np.all(np.isfinite([px, pz, turn, sx, sz])):
             raise WireError(f"byte {at}: a WARP of non-finite numbers")
         return Warp(character, frame, frames, (px, pz), turn, (sx, sz))
+    if kind == JOINTS:
+        _, character, frame, n, joints = _JOINTS.unpack_from(data, at)
+        j = np.frombuffer(data, "<f4", n * joints * 3, at + _JOINTS.size).reshape(n, joints, 3).astype(np.float32)
+        if not len(j) or not joints or not np.isfinite(j).all():
+            raise WireError(f"byte {at}: a JOINTS record of no frames, no joints or non-finite numbers")
+        return Joints(character, frame, j)
     _, magic, version, lv, codebook, downsample, ident = _HELLO.unpack_from(data, at)
     if magic != MAGIC:
         raise WireError(f"byte {at}: not a mogo token stream (magic {magic!r})")

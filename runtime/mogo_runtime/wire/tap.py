@@ -33,7 +33,9 @@ def describe(target) -> str:
 
 
 class CharacterTap:
-    def __init__(self, character, ident: int):
+    """`started`: the stream already has the character's START (a character restored where it was saved)."""
+
+    def __init__(self, character, ident: int, started: bool = False):
         self.character, self.ident = character, ident
         self.sent = character.count                     # tokens already in the stream
         self.switch = character.switches[-1] if character.switches else None     # the last switch sent
@@ -41,7 +43,7 @@ class CharacterTap:
         steering = character.steering
         self.target = steering.target if steering is not None else None
         self.plans = steering.warp.planned if steering is not None else 0
-        self.pending: list[Record] = [Event(ident, self.sent, START, character.text)]
+        self.pending: list[Record] = [] if started else [Event(ident, self.sent, START, character.text)]
 
     def read(self) -> list[Record]:
         """The records since the last read, in stream order: events, then tokens, then root corrections."""

@@ -1,0 +1,137 @@
+"""A motion server's client (protocol.py), for a game or a test: add characters, send prompts and control
+requests, and receive their records; with a bundle, their frames too (decoded here, wire/client.py).
+
+    async with await ServerClient.connect("ws://127.0.0.1:8765", token, bundle="bundles/base", variant="compact") as c:
+        walker = await c.add("a person walks forward", seed=1)
+        await c.request(walker, goal=[4.0, 2.0])
+        async for ident, frames in c.frames():          # (n, J, 3) joints as they are decoded
+            ...
+
+`next_seq` holds the next token expected of each character: `reconnect()` hands it to the server, which sends what
+was missed, so a dropped connection (or a server restarted on its saved state) loses and repeats nothing.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+
+from ..wire import format as wire
+from ..wire.client import MotionClient
+
+
+class ServerError(RuntimeError):
+    """The server refused a request (`fatal`: and closed the connection)."""
+
+    def __init__(self, message: str, fatal: bool):
+        super().__init__(message)
+        self.fatal = fatal
+
+
+class ServerClient:
+    def __init__(self, url: str, token: str, decoder: MotionClient | None = None, origin: str | None = None):
+        self.url, self.token, self.decoder, self.origin = url, token, decoder, origin
+        self.session: str | None = None
+        self.next_seq: dict[int, int] = {}
+        self.records: asyncio.Queue = asyncio.Queue()      # (ident, Frames) with a decoder, else records
+        self.errors: list[ServerError] = []
+        self._replies: asyncio.Queue = asyncio.Queue()
+        self._ws = self._reader = None
+        self.levels: int | None = None
+
+    @classmethod
+    async def connect(cls, url: str, token: str, bundle=None, variant: str = "fp32", origin: str | None = None):
+        client = cls(url, token, MotionClient(bundle, variant) if bundle is not None else None, origin)
+        await client.reconnect()
+        return client
+
+    async def reconnect(self) -> dict:
+        """Connect (again): a new session the first time, then the same one, from the tokens expected next."""
+        from websockets.asyncio.client import connect
+
+        if self._ws is not None:
+            await self.close()
+        self._ws = await connect(self.url, origin=self.origin, compression=None, max_size=16 << 20)
+        hello = {"op": "hello", "token": self.token}
+        if self.session is not None:
+            hello.update(session=self.session, resume={str(k): v for k, v in self.next_seq.items()})
+        await self._ws.send(json.dumps(hello))
+        welcome = json.loads(await self._ws.recv())
+        if welcome.get("op") != "welcome":
+            raise ServerError(welcome.get("message", str(welcome)), bool(welcome.get("fatal")))
+        self.session = welcome["session"]
+        self._reader = asyncio.create_task(self._read())
+        return welcome
+
+    async def _read(self) -> None:
+        try:
+            async for message in self._ws:
+                if isinstance(message, str):
+                    reply = json.loads(message)
+                    if reply.get("op") == "error":
+                        error = ServerError(reply["message"], reply["fatal"])
+                        self.errors.append(error)
+                        await self._replies.put(error)
+                    else:
+                        await self._replies.put(reply)
+                    continue
+                records = wire.read_message(message, self.levels)
+                for r in records:
+                    if isinstance(r, wire.Hello):
+                        self.levels = r.levels
+                    elif isinstance(r, wire.Tokens):
+                        self.next_seq[r.character] = r.seq + len(r.codes)
+                    elif isinstance(r, wire.Event) and r.event == wire.START:
+                        self.next_seq.setdefault(r.character, r.seq)
+                if self.decoder is None:
+                    for r in records:
+                        await self.records.put(r)
+                else:
+                    for ident, frames in self.decoder.apply(records).items():
+                        await self.records.put((ident, frames))
+        except Exception as e:       # the connection closed, or a stream the decoder refuses: the caller sees it
+            await self._replies.put(e)
+            await self.records.put(e)
+
+    async def _reply(self, op: str) -> dict:
+        reply = await self._replies.get()
+        if isinstance(reply, BaseException):
+            raise reply
+        if reply.get("op") != op:
+            raise ServerError(f"expected {op}, got {reply}", False)
+        return reply
+
+    async def add(self, prompt: str, seed: int = 0, seconds: float | None = None) -> int:
+        """-> the new character's id."""
+        await self._ws.send(json.dumps({"op": "add", "prompt": prompt, "seed": seed, "seconds": seconds}))
+        return (await self._reply("added"))["id"]
+
+    async def request(self, ident: int, **fields) -> None:
+        """A prompt and/or a control request: prompt=, goal=, path=, speed=, velocity=, facing=, root=, release="""
+        await self._ws.send(json.dumps({"op": "request", "id": ident, **fields}))
+
+    async def joints(self, ident: int, on: bool = True) -> None:
+        await self._ws.send(json.dumps({"op": "joints", "id": ident, "on": on}))
+
+    async def remove(self, ident: int) -> None:
+        await self._ws.send(json.dumps({"op": "remove", "id": ident}))
+        await self._reply("removed")
+
+    async def next(self):
+        """The next (ident, Frames) with a decoder, else the next record."""
+        item = await self.records.get()
+        if isinstance(item, BaseException):
+            raise item
+        return item
+
+    async def close(self) -> None:
+        if self._reader is not None:
+            self._reader.cancel()
+        if self._ws is not None:
+            await self._ws.close()
+        self._ws = self._reader = None
+
+    async def __aenter__(self):
+        return self
+
+    async def __aexit__(self, *exc):
+        await self.close()

@@ -1,0 +1,246 @@
+"""The motion server (serve/): clients add characters and get their tokens, the tokens a crowd of their own would
+give; hostile clients get one error and are dropped while the others carry on without a gap; a client that
+reconnects, or a server stopped with SIGTERM and started again, loses and repeats no token."""
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from toy_bundle import portable_toy_bundle  # noqa: F401,F811  (a fixture)
+
+pytest.importorskip("websockets")   # the `serve` extra: `make setup` installs it, so this never skips in CI
+from websockets.asyncio.client import connect  # noqa: E402
+
+from mogo_runtime import MotionGenerator  # noqa: E402
+from mogo_runtime.crowd import Crowd  # noqa: E402
+from mogo_runtime.serve.client import ServerClient, ServerError  # noqa: E402
+from mogo_runtime.serve.protocol import Limits  # noqa: E402
+from mogo_runtime.serve.server import MotionServer  # noqa: E402
+from mogo_runtime.wire import format as wire  # noqa: E402
+
+TOKEN = "test-token-0123456789"
+PROMPTS = [("a person walks forward", 1), ("a person waves with the right hand", 2), ("a person turns left", 3)]
+
+
+@pytest.fixture(scope="module")
+def gen(portable_toy_bundle):  # noqa: F811
+    return MotionGenerator(portable_toy_bundle, variant="compact")
+
+
+def reference_tokens(gen, prompt, seed, n, switch=None):
+    """A character's first n tokens in a crowd of its own (switch: (token, prompt))."""
+    crowd = Crowd(gen)
+    c = crowd.add(prompt, seed=seed)
+    out = []
+    for _ in range(n):
+        if switch and c.count == switch[0]:
+            c.set_prompt(switch[1])
+        crowd.tick()
+        out.append(c.context.last.copy())
+    return np.stack(out)
+
+
+async def running(gen, limits=Limits(), speed=20.0, **kw):
+    """A server on a free port, ticking `speed` times faster than real time -> (server, url, stop, task)."""
+    server = MotionServer(gen, TOKEN, limits, speed=speed, **kw)
+    stop, port = asyncio.Event(), asyncio.get_running_loop().create_future()
+    task = asyncio.create_task(server.serve("127.0.0.1", 0, lambda s: port.set_result(s.sockets[0].getsockname()[1]),
+                                            stop))
+    return server, f"ws://127.0.0.1:{await port}", stop, task
+
+
+async def tokens_of(client, counts: dict[int, int], got=None, switches=None, timeout=60.0) -> dict[int, list]:
+    """Records from `client` until each character has counts[id] tokens, added to `got` (its tokens so far): each
+    token must be the one expected next (none skipped, none repeated). `switches` collects PROMPT events."""
+    got = got if got is not None else {i: [] for i in counts}
+    deadline = time.monotonic() + timeout
+    while any(len(got[i]) < n for i, n in counts.items()):
+        r = await asyncio.wait_for(client.next(), max(0.1, deadline - time.monotonic()))
+        if isinstance(r, wire.Tokens) and r.character in got:
+            assert r.seq == len(got[r.character]), f"character {r.character}: token {r.seq} after {len(got[r.character])}"
+            got[r.character].extend(r.codes)
+        if switches is not None and isinstance(r, wire.Event) and r.event == wire.PROMPT:
+            switches[r.character] = (r.seq, r.text)
+    return got
+
+
+def test_clients_get_the_tokens_of_their_characters(gen):
+    async def main():
+        server, url, stop, task = await running(gen)
+        a = await ServerClient.connect(url, TOKEN)
+        b = await ServerClient.connect(url, TOKEN)
+        ia = await a.add(*PROMPTS[0][:1], seed=PROMPTS[0][1])
+        ib = await b.add(PROMPTS[1][0], seed=PROMPTS[1][1])
+        got_a, got_b = await asyncio.gather(tokens_of(a, {ia: 12}), tokens_of(b, {ib: 12}))
+        with pytest.raises(ServerError, match="no character"):      # b cannot touch a's character
+            await b.request(ia + 5, prompt="a person jumps")
+            await b._reply("never")
+        await a.close(), await b.close()
+        stop.set()
+        await task
+        return got_a[ia], got_b[ib]
+    ta, tb = asyncio.run(main())
+    np.testing.assert_array_equal(np.stack(ta[:12]), reference_tokens(gen, *PROMPTS[0], 12))
+    np.testing.assert_array_equal(np.stack(tb[:12]), reference_tokens(gen, *PROMPTS[1], 12))
+
+
+def test_frames_decoded_by_the_client_are_the_crowd_s(gen, portable_toy_bundle):  # noqa: F811
+    async def main():
+        server, url, stop, task = await running(gen)
+        c = await ServerClient.connect(url, TOKEN, bundle=portable_toy_bundle, variant="compact")
+        ident = await c.add("a person walks forward", seed=1)
+        joints = []
+        while sum(len(j) for j in joints) < 40:
+            i, frames = await asyncio.wait_for(c.next(), 30)
+            joints.append(frames.joints)
+        await c.close()
+        stop.set()
+        await task
+        return ident, np.concatenate(joints)
+    ident, joints = asyncio.run(main())
+    crowd = Crowd(gen, chunk=1)
+    ch = crowd.add("a person walks forward", seed=1)
+    want = np.concatenate([crowd.tick()[ch].joints for _ in range(10)])
+    np.testing.assert_array_equal(joints[:40], want[:40])
+
+
+def test_a_reconnecting_client_misses_and_repeats_nothing(gen):
+    async def main():
+        server, url, stop, task = await running(gen)
+        c = await ServerClient.connect(url, TOKEN)
+        ident = await c.add("a person walks forward", seed=1)
+        got = await tokens_of(c, {ident: 5})
+        await c.close()                      # gone for a while: the server keeps ticking
+        await asyncio.sleep(0.5)
+        await c.reconnect()
+        await tokens_of(c, {ident: 30}, got)
+        await c.close()
+        stop.set()
+        await task
+        return got[ident]
+    tokens = asyncio.run(main())
+    np.testing.assert_array_equal(np.stack(tokens[:30]), reference_tokens(gen, "a person walks forward", 1, 30))
+
+
+@pytest.mark.parametrize("send, message", [
+    ("not json", "JSON object"),
+    (json.dumps({"op": "dance"}), "op of"),
+    (json.dumps({"op": "add", "prompt": 5}), "prompt must be a str"),
+    (json.dumps({"op": "add", "prompt": "x", "extra": 1}), "unknown field"),
+    (json.dumps({"op": "remove", "id": -1}), "id must be"),
+    (b"\x00\x01binary", "not binary"),
+    ("x" * 5000, "too big|1009"),
+    ("flood", "messages a second"),
+    (json.dumps({"op": "hello", "token": TOKEN}), "hello once"),
+])
+def test_a_hostile_client_is_dropped_and_the_others_carry_on(gen, send, message):
+    async def main():
+        limits = Limits(max_message_bytes=4096, messages_per_second=10)
+        server, url, stop, task = await running(gen, limits)
+        good = await ServerClient.connect(url, TOKEN)
+        ident = await good.add("a person walks forward", seed=1)
+        async with connect(url, compression=None) as bad:
+            await bad.send(json.dumps({"op": "hello", "token": TOKEN}))
+            assert json.loads(await bad.recv())["op"] == "welcome"
+            if send == "flood":
+                for _ in range(100):
+                    await bad.send(json.dumps({"op": "joints", "id": 0, "on": True}))
+            else:
+                await bad.send(send)
+            reason = ""
+            try:
+                while True:
+                    m = await asyncio.wait_for(bad.recv(), 10)
+                    if isinstance(m, str) and json.loads(m)["op"] == "error":
+                        reason = json.loads(m)["message"]
+            except Exception as e:     # closed by the server
+                reason = reason or f"{e}"
+        tokens = await tokens_of(good, {ident: 20})
+        await good.close()
+        stop.set()
+        await task
+        return reason, tokens[ident]
+    reason, tokens = asyncio.run(main())
+    assert __import__("re").search(message, reason), reason
+    np.testing.assert_array_equal(np.stack(tokens[:20]), reference_tokens(gen, "a person walks forward", 1, 20))
+
+
+def test_wrong_token_late_hello_and_foreign_origin_are_refused(gen):
+    async def main():
+        server, url, stop, task = await running(gen, Limits(hello_seconds=0.5), origins=[None, "https://game.example"])
+        out = []
+        async with connect(url) as ws:
+            await ws.send(json.dumps({"op": "hello", "token": "wrong-token-0123456789"}))
+            out.append(json.loads(await ws.recv())["message"])
+        async with connect(url) as ws:
+            out.append(json.loads(await asyncio.wait_for(ws.recv(), 5))["message"])
+        try:
+            async with connect(url, origin="https://evil.example"):
+                out.append("connected")
+        except Exception as e:
+            out.append(str(e))
+        stop.set()
+        await task
+        return out
+    wrong, late, origin = asyncio.run(main())
+    assert "wrong token" in wrong and "no hello" in late and "403" in origin
+
+
+def test_a_vanished_client_frees_its_characters(gen):
+    async def main():
+        server, url, stop, task = await running(gen, Limits(linger_seconds=0.3))
+        c = await ServerClient.connect(url, TOKEN)
+        await c.add("a person walks forward", seed=1)
+        await c.add("a person waves with the right hand", seed=2)
+        assert len(server.crowd) == 2
+        c._ws.transport.abort()            # gone without a close
+        for _ in range(100):
+            await asyncio.sleep(0.05)
+            if not server.crowd.characters and not server.sessions:
+                break
+        stop.set()
+        await task
+        return len(server.crowd), len(server.sessions)
+    assert asyncio.run(main()) == (0, 0)
+
+
+def test_sigterm_saves_and_a_restarted_server_resumes_every_character(gen, portable_toy_bundle, tmp_path):  # noqa: F811
+    state, env = tmp_path / "serve.state", dict(os.environ, MOGO_SERVE_TOKEN=TOKEN)
+
+    def start():
+        proc = subprocess.Popen([sys.executable, "-m", "mogo_runtime.cli", "serve", str(portable_toy_bundle),
+                                 "--port", "0", "--state", str(state)], env=env, stderr=subprocess.PIPE, text=True)
+        line = proc.stderr.readline()
+        assert "ws://" in line, line + proc.stderr.read()
+        return proc, line.split()[-1]
+
+    async def main():
+        proc, url = start()
+        c = await ServerClient.connect(url, TOKEN)
+        ids = [await c.add(p, seed=s) for p, s in PROMPTS]
+        switches = {}
+        got = await tokens_of(c, {i: 3 for i in ids})
+        await c.request(ids[2], prompt="a person jumps in place")     # lands at a token the PROMPT event names
+        await tokens_of(c, {i: 6 for i in ids}, got, switches)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) == 0, proc.stderr.read()
+        assert state.exists()
+        proc, c.url = start()              # on another port: the client follows it
+        try:
+            await c.reconnect()
+            await tokens_of(c, {i: 25 for i in ids}, got, switches)
+        finally:
+            await c.close()
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(30)
+        return ids, got, switches
+    ids, got, switches = asyncio.run(main())
+    assert list(switches) == [ids[2]]
+    for i, (prompt, seed) in zip(ids, PROMPTS):
+        want = reference_tokens(gen, prompt, seed, 25, switches.get(i))
+        np.testing.assert_array_equal(np.stack(got[i][:25]), want)
