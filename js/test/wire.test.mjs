@@ -12,7 +12,7 @@ import { fileLoader, toHex } from '../src/bundle/io.js';
 import { MotionDecoder, OrtBackend } from '../src/engine.js';
 import { MotionClient } from '../src/wire/client.js';
 import {
-  END, Event, Hello, PROMPT, RecordReader, Tokens, Warp, WireError, encode, readMessage,
+  END, Event, Hello, Joints, PROMPT, RecordReader, Tick, Tokens, Warp, WireError, encode, readMessage,
 } from '../src/wire/format.js';
 import { maxAbsDiff, readReference, report } from './reference.mjs';
 
@@ -83,7 +83,8 @@ test('records cut anywhere are reassembled, and encode writes the bytes Python w
 test('records round-trip; what the wire cannot carry is refused', () => {
   const records = [new Hello(2, 16, 4, Uint8Array.from([1, 2, 3, 4, 5, 6, 7, 8])),
     new Tokens(3, 9, Int32Array.from([1, 2, 15, 0]), 2), new Event(3, 9, PROMPT, '\ufeffa person waves ✋'),
-    new Event(3, 11, END), new Warp(3, 44, 4, [1.5, -2], 0.25, [0.01, 0])];
+    new Event(3, 11, END), new Warp(3, 44, 4, [1.5, -2], 0.25, [0.01, 0]),
+    new Joints(3, 44, Float32Array.from([0.5, 1, -2, 0, 0.25, 3]), 2), new Tick(2n ** 40n + 7n, 1234.5)];
   const back = readMessage(Buffer.concat(records.map(encode)));
   assert.deepEqual(back, records);   // the BOM is text, kept as Python keeps it
   assert.throws(() => encode(new Tokens(0, 0, new Int32Array(0), 2)),

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from toy_bundle import portable_toy_bundle  # noqa: F401,F811  (a fixture)
 
-pytest.importorskip("websockets")   # the `serve` extra: `make setup` installs it, so this never skips in CI
+
 from websockets.asyncio.client import connect  # noqa: E402
 
 from mogo_runtime import MotionGenerator  # noqa: E402

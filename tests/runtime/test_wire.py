@@ -146,3 +146,16 @@ def test_a_message_must_hold_whole_records(gen):
     messages, _ = crowd_stream(gen, ticks=3)
     with pytest.raises(wire.WireError, match="ends inside a record"):
         wire.read_message(messages[1][:-1], levels=gen.dims.num_levels)
+
+
+def test_every_record_round_trips():
+    records = [wire.Hello(2, 16, 4, bytes(range(8))), wire.Tokens(3, 9, np.array([[1, 2], [15, 0]])),
+               wire.Event(3, 9, wire.PROMPT, "\ufeffa person waves ✋"), wire.Event(3, 11, wire.END),
+               wire.Warp(3, 44, 4, (1.5, -2.0), 0.25, (0.01, 0.0)),
+               wire.Joints(3, 44, np.arange(6, dtype=np.float32).reshape(1, 2, 3)), wire.Tick(2 ** 40 + 7, 1234.5)]
+    back = wire.read_message(b"".join(map(wire.encode, records)))
+    assert len(back) == len(records)
+    for a, b in zip(records, back):
+        assert type(a) is type(b)
+        for k, v in vars(a).items():
+            np.testing.assert_array_equal(np.asarray(v), np.asarray(getattr(b, k)))

@@ -7,6 +7,7 @@
 //   EVENT   u8 3, u32 character, u32 seq, u8 event, u16 n, n bytes UTF-8 text       (seq: the token it applies from)
 //   WARP    u8 4, u32 character, u32 frame, u16 frames, 5 f64: pose x, pose z, turn, shift x, shift z
 //   JOINTS  u8 5, u32 character, u32 frame, u16 n, u8 joints, n * joints * 3 f32    (a server's, on request)
+//   TICK    u8 6, u64 tick, f64 time     (a server's: which of its ticks a message holds, its clock in seconds)
 //
 // Records are classes, told apart with instanceof as Python's with isinstance; a TOKENS record's codes are a flat
 // Int32Array (count, levels), as tokens everywhere in this runtime. Messages are the Python reader's, so both
@@ -18,7 +19,7 @@ import { oneLine, shown } from '../checks.js';
 
 export const MAGIC = 'MOGT';
 export const VERSION = 1;
-export const HELLO = 1, TOKENS = 2, EVENT = 3, WARP = 4, JOINTS = 5;
+export const HELLO = 1, TOKENS = 2, EVENT = 3, WARP = 4, JOINTS = 5, TICK = 6;
 export const START = 1, PROMPT = 2, CONTROL = 3, RESTART = 4, END = 5;   // events
 export const EVENT_NAMES = Object.freeze({ [START]: 'start', [PROMPT]: 'prompt', [CONTROL]: 'control',
   [RESTART]: 'restart', [END]: 'end' });
@@ -26,7 +27,7 @@ export const MAX_TOKENS_PER_RECORD = 255;
 export const MAX_TEXT_BYTES = 4096;   // an event's text: a prompt (at most 1,000 characters) or a control request as JSON
 
 // the fixed part of each record, in bytes (Python's struct sizes: "<" packs without padding)
-const HELLO_SIZE = 18, TOKENS_SIZE = 10, EVENT_SIZE = 12, WARP_SIZE = 51, JOINTS_SIZE = 12;
+const HELLO_SIZE = 18, TOKENS_SIZE = 10, EVENT_SIZE = 12, WARP_SIZE = 51, JOINTS_SIZE = 12, TICK_SIZE = 17;
 
 /** A token stream that breaks the format, or one this client cannot decode. */
 export class WireError extends Error {
@@ -62,6 +63,13 @@ export class Joints {
   }
 
   get count() { return this.joints.length / (3 * this.numJoints); }
+}
+
+export class Tick {
+  /** `tick`: a BigInt (u64 on the wire); `time`: the server's clock, seconds. */
+  constructor(tick, time) {
+    Object.assign(this, { tick, time });
+  }
 }
 
 export class Warp {
@@ -131,6 +139,13 @@ export function encode(record) {
     for (let i = 0; i < record.joints.length; i++) w.view.setFloat32(JOINTS_SIZE + 4 * i, record.joints[i], true);
     return w.bytes;
   }
+  if (record instanceof Tick) {
+    const w = new Writer(TICK_SIZE);
+    w.u8(TICK);
+    w.view.setBigUint64(1, BigInt(record.tick), true);
+    w.view.setFloat64(9, record.time, true);
+    return w.bytes;
+  }
   if (record instanceof Hello) {
     const w = new Writer(HELLO_SIZE);
     w.u8(HELLO);
@@ -181,6 +196,7 @@ function recordSize(data, at, levels) {
   if (kind === JOINTS) {
     return data.length < at + JOINTS_SIZE ? null : JOINTS_SIZE + 12 * (data[at + 9] | (data[at + 10] << 8)) * data[at + 11];
   }
+  if (kind === TICK) return TICK_SIZE;
   if (kind === HELLO) return HELLO_SIZE;
   throw new WireError(`byte ${at}: unknown record type ${kind}`);
 }
@@ -213,6 +229,11 @@ function decodeRecord(data, at, size, levels) {
     const [px, pz, turn, sx, sz] = [0, 1, 2, 3, 4].map((i) => view.getFloat64(at + 11 + 8 * i, true));
     if (![px, pz, turn, sx, sz].every(Number.isFinite)) throw new WireError(`byte ${at}: a WARP of non-finite numbers`);
     return new Warp(u32(1), u32(5), u16(9), [px, pz], turn, [sx, sz]);
+  }
+  if (kind === TICK) {
+    const when = view.getFloat64(at + 9, true);
+    if (!Number.isFinite(when)) throw new WireError(`byte ${at}: a TICK at a non-finite time`);
+    return new Tick(view.getBigUint64(at + 1, true), when);
   }
   if (kind === JOINTS) {
     const n = u16(9), J = data[at + 11], joints = new Float32Array(n * J * 3);

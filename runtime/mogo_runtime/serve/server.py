@@ -108,6 +108,8 @@ class MotionServer:
             if blobs and session.live:      # else the replay has them, for when the client comes back
                 out[session] = b"".join(blobs)
         self.ticks += 1
+        stamp = wire.encode(wire.Tick(self.ticks, time.monotonic()))
+        out = {session: stamp + blob for session, blob in out.items()}
         self.tick_seconds.append(time.perf_counter() - start)
         return replies, out
 

@@ -8,6 +8,8 @@ A stream is a sequence of records, each self-delimiting, all integers little-end
     EVENT   u8 3, u32 character, u32 seq, u8 event, u16 n, n bytes UTF-8 text       (seq: the token it applies from)
     WARP    u8 4, u32 character, u32 frame, u16 frames, 5 f64: pose x, pose z, turn, shift x, shift z
     JOINTS  u8 5, u32 character, u32 frame, u16 n, u8 joints, n * joints * 3 f32    (a server's, on request)
+    TICK    u8 6, u64 tick, f64 time         (a server's: which of its ticks a message holds, and when it was sent
+                                              by the server's monotonic clock in seconds)
 
 A HELLO comes first: the client checks it has the decoder the tokens were made for (`decoder_id`: the decoder and
 lookup graphs' sha256, so a compact client refuses an fp32 stream, whose frames would differ in the last bits).
@@ -29,7 +31,7 @@ from ..bundle.manifest import Manifest
 
 MAGIC = b"MOGT"
 VERSION = 1
-HELLO, TOKENS, EVENT, WARP, JOINTS = 1, 2, 3, 4, 5
+HELLO, TOKENS, EVENT, WARP, JOINTS, TICK = 1, 2, 3, 4, 5, 6
 START, PROMPT, CONTROL, RESTART, END = 1, 2, 3, 4, 5       # events
 EVENT_NAMES = {START: "start", PROMPT: "prompt", CONTROL: "control", RESTART: "restart", END: "end"}
 MAX_TOKENS_PER_RECORD = 255
@@ -40,6 +42,7 @@ _TOKENS = struct.Struct("<BIIB")
 _EVENT = struct.Struct("<BIIBH")
 _WARP = struct.Struct("<BIIH5d")
 _JOINTS = struct.Struct("<BIIHB")
+_TICK = struct.Struct("<BQd")
 
 
 class WireError(ValueError):
@@ -87,7 +90,13 @@ class Joints:
     joints: np.ndarray       # (n, J, 3) float32 metres, y up
 
 
-Record = Hello | Tokens | Event | Warp | Joints
+@dataclass(frozen=True)
+class Tick:
+    tick: int
+    time: float
+
+
+Record = Hello | Tokens | Event | Warp | Joints | Tick
 
 
 def decoder_id(manifest: Manifest, variant: str) -> bytes:
@@ -124,6 +133,8 @@ def encode(record: Record) -> bytes:
         if j.ndim != 3 or j.shape[2] != 3 or not 1 <= len(j) <= 0xFFFF or not 1 <= j.shape[1] <= 255:
             raise WireError(f"a JOINTS record holds (1 to 65535 frames, 1 to 255 joints, 3), got {j.shape}")
         return _JOINTS.pack(JOINTS, record.character, record.frame, len(j), j.shape[1]) + j.tobytes()
+    if isinstance(record, Tick):
+        return _TICK.pack(TICK, record.tick, record.time)
     if isinstance(record, Hello):
         return _HELLO.pack(HELLO, MAGIC, record.version, record.levels, record.codebook_size, record.downsample,
                            record.decoder_id)
@@ -146,6 +157,8 @@ def _size(data: bytes | memoryview, at: int, levels: int) -> int | None:
             return None
         n = int.from_bytes(data[at + 9:at + 11], "little")
         return _JOINTS.size + 12 * n * data[at + _JOINTS.size - 1]
+    if kind == TICK:
+        return _TICK.size
     if kind == HELLO:
         return _HELLO.size
     raise WireError(f"byte {at}: unknown record type {kind}")
@@ -175,6 +188,11 @@ def _decode(data, at: int, size: int, levels: int) -> Record:
         if not np.all(np.isfinite([px, pz, turn, sx, sz])):
             raise WireError(f"byte {at}: a WARP of non-finite numbers")
         return Warp(character, frame, frames, (px, pz), turn, (sx, sz))
+    if kind == TICK:
+        _, tick, when = _TICK.unpack_from(data, at)
+        if not np.isfinite(when):
+            raise WireError(f"byte {at}: a TICK at a non-finite time")
+        return Tick(tick, when)
     if kind == JOINTS:
         _, character, frame, n, joints = _JOINTS.unpack_from(data, at)
         j = np.frombuffer(data, "<f4", n * joints * 3, at + _JOINTS.size).reshape(n, joints, 3).astype(np.float32)
