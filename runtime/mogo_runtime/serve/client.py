@@ -31,6 +31,7 @@ class ServerClient:
     def __init__(self, url: str, token: str, decoder: MotionClient | None = None, origin: str | None = None):
         self.url, self.token, self.decoder, self.origin = url, token, decoder, origin
         self.session: str | None = None
+        self.welcome: dict = {}                  # the server's last welcome (its "server" id: which replica)
         self.next_seq: dict[int, int] = {}
         self.records: asyncio.Queue = asyncio.Queue()      # (ident, Frames) with a decoder, else records
         self.errors: list[ServerError] = []
@@ -58,7 +59,7 @@ class ServerClient:
         welcome = json.loads(await self._ws.recv())
         if welcome.get("op") != "welcome":
             raise ServerError(welcome.get("message", str(welcome)), bool(welcome.get("fatal")))
-        self.session = welcome["session"]
+        self.session, self.welcome = welcome["session"], welcome
         self._reader = asyncio.create_task(self._read())
         return welcome
 

@@ -31,8 +31,13 @@ def add_parser(sub) -> None:
     p.add_argument("--characters-per-connection", type=int, default=16)
     p.add_argument("--characters", type=int, default=4096, help="characters in the whole server (default 4096)")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default 1)")
+    p.add_argument("--status", type=float, default=60.0, metavar="SECONDS",
+                   help="a status line on stderr every SECONDS (default 60; 0: none)")
     p.add_argument("--ray", action="store_true", help="serve as a Ray Serve deployment (serve/ray.py)")
-    p.add_argument("--replicas", type=int, default=1, help="with --ray: replicas (default 1)")
+    p.add_argument("--replicas", type=int, default=1,
+                   help="with --ray: replicas (default 1); deploying again with another count scales")
+    p.add_argument("--ray-address", help="with --ray: the Ray cluster (default: $RAY_ADDRESS, else a running one)")
+    p.add_argument("--detach", action="store_true", help="with --ray: deploy and return, leaving it running")
     p.set_defaults(run=run)
 
 
@@ -72,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
 
         return serve_on_ray(args, token, limits)
     gen = MotionGenerator(args.bundle, variant=args.variant, threads=args.threads)
-    server = MotionServer(gen, token, limits, state_file=args.state, origins=args.origin)
+    server = MotionServer(gen, token, limits, state_file=args.state, origins=args.origin, status_seconds=args.status)
 
     def ready(ws_server):
         ports = sorted({s.getsockname()[1] for s in ws_server.sockets})

@@ -22,6 +22,7 @@ import json
 import os
 import secrets
 import signal
+import sys
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -55,6 +56,7 @@ class Session:
     characters: dict[int, Hosted] = field(default_factory=dict)
     next_id: int = 0
     queue: asyncio.Queue | None = None       # the connected client's outgoing messages; None while disconnected
+    ws: object = None                        # its connection
     backlog: list | None = None              # messages of ticks that ended while its welcome was being written
     live: bool = False                       # on the tick thread: whether ticks go to the client or only to replay
     gone_at: float | None = None
@@ -62,7 +64,7 @@ class Session:
 
 class MotionServer:
     def __init__(self, gen, token: str, limits: Limits = Limits(), state_file: str | Path | None = None,
-                 origins: list[str] | None = None, speed: float = 1.0):
+                 origins: list[str] | None = None, speed: float = 1.0, status_seconds: float = 0.0):
         if len(token) < 16:
             raise ValueError("the server's bearer token must be at least 16 characters")
         self.gen, self.token, self.limits, self.origins = gen, token.encode(), limits, origins
@@ -70,11 +72,12 @@ class MotionServer:
         self.hello = wire.encode(wire.hello_for(gen.bundle.manifest, gen.variant))
         self.period = gen.dims.downsample / gen.dims.fps / speed
         self.sessions: dict[str, Session] = {}
+        self.id = secrets.token_hex(4)       # which server (which Ray replica) a client is on, in its welcome
         # every change to the crowd and the sessions' characters runs on this one thread, between ticks
         self.pool = ThreadPoolExecutor(1, thread_name_prefix="mogo-tick")
         self.commands: deque = deque()       # the clients' requests, applied on that thread before the next tick
         self.state_file = Path(state_file) if state_file else None
-        self.ticks, self.tick_seconds = 0, deque(maxlen=3000)
+        self.ticks, self.tick_seconds, self.status_seconds = 0, deque(maxlen=100_000), status_seconds
         if self.state_file is not None and self.state_file.exists():
             self._restore(self.state_file)
 
@@ -115,6 +118,8 @@ class MotionServer:
 
     def _add(self, session: Session, ident: int, msg: dict):
         def run():
+            if self.sessions.get(session.id) is not session:     # the client left and its session expired
+                return []
             try:
                 if len(session.characters) >= self.limits.characters_per_connection:
                     raise Refused(f"a connection holds at most {self.limits.characters_per_connection} characters")
@@ -154,8 +159,7 @@ class MotionServer:
         session = None
         try:
             session = await self._welcome(ws)
-            if session is None:
-                return
+            session.ws = ws
             writer = asyncio.create_task(self._write(ws, session.queue))
             rate = RateLimit(self.limits.messages_per_second, time.monotonic())
             try:
@@ -169,11 +173,18 @@ class MotionServer:
                 writer.cancel()
         except ProtocolError as e:
             await _close(ws, str(e))
+        except ConnectionError:       # the client left mid-message (a Starlette connection says so; websockets ends)
+            pass
+        except Exception as e:
+            if not type(e).__name__.startswith("ConnectionClosed"):    # websockets': the client left
+                raise
         finally:
-            if session is not None and session.queue is not None:
-                session.queue, session.gone_at, session.live = None, time.monotonic(), False
+            if session is not None and session.ws is ws:
+                # a session without characters has nothing to come back for
+                gone = time.monotonic() - (self.limits.linger_seconds if not session.characters else 0)
+                session.queue, session.ws, session.gone_at, session.live = None, None, gone, False
 
-    async def _welcome(self, ws) -> Session | None:
+    async def _welcome(self, ws) -> Session:
         try:
             text = await asyncio.wait_for(ws.recv(), self.limits.hello_seconds)
         except asyncio.TimeoutError:
@@ -216,7 +227,7 @@ class MotionServer:
                                     f"{h.replay[0][0]})")
             replay.extend(blob for key, blob in h.replay if key >= expected)
         session.queue, session.backlog, session.gone_at, session.live = queue, [], None, True
-        return [json.dumps({"op": "welcome", "session": session.id,
+        return [json.dumps({"op": "welcome", "session": session.id, "server": self.id,
                             "characters": {str(i): h.tap.sent for i, h in session.characters.items()}}),
                 self.hello + b"".join(replay)]
 
@@ -230,8 +241,11 @@ class MotionServer:
             self.commands.append(self._request(session, msg))
 
     async def _write(self, ws, queue: asyncio.Queue) -> None:
-        while True:
-            await ws.send(await queue.get())
+        try:
+            while True:
+                await ws.send(await queue.get())
+        except Exception:        # the connection closed: the handler's read loop ends and cleans up
+            pass
 
     def _deliver(self, session: Session, message) -> None:
         if session.queue is None:
@@ -242,13 +256,28 @@ class MotionServer:
         try:
             session.queue.put_nowait(message)
         except asyncio.QueueFull:      # a client that does not read: dropped, its characters linger
-            session.queue, session.gone_at, session.live = None, time.monotonic(), False
+            ws, session.queue, session.ws = session.ws, None, None
+            session.gone_at, session.live = time.monotonic(), False
+            if ws is not None:
+                asyncio.create_task(_close(ws, f"{self.limits.send_queue} messages unread: the client is too slow"))
+
+    def status(self) -> str:
+        """One line: ticks, characters, sessions, tick times since the last status line, memory."""
+        times = sorted(self.tick_seconds)
+        self.tick_seconds.clear()
+        p50, p99 = (times[len(times) // 2], times[min(len(times) - 1, int(0.99 * len(times)))]) if times else (0, 0)
+        return (f"tick {self.ticks}, {len(self.crowd)} characters, {sum(s.queue is not None for s in self.sessions.values())}"
+                f" clients, tick p50 {1e3 * p50:.2f} ms p99 {1e3 * p99:.2f} ms (of {1e3 * self.period:.0f}), "
+                f"rss {_rss_mb():.0f} MB")
 
     async def run(self, stop: asyncio.Event) -> None:
-        """Tick in real time until `stop` is set."""
+        """Tick in real time until `stop` is set; a status line on stderr every `status_seconds`."""
         loop = asyncio.get_running_loop()
-        deadline = loop.time()
+        deadline = last_status = loop.time()
         while not stop.is_set():
+            if self.status_seconds and loop.time() - last_status >= self.status_seconds:
+                last_status = loop.time()
+                print(f"mogo serve: {self.status()}", file=sys.stderr, flush=True)
             replies, out = await loop.run_in_executor(self.pool, self._advance)
             for session, message in replies:
                 self._deliver(session, message)
@@ -326,6 +355,14 @@ class MotionServer:
         except (ValueError, KeyError, TypeError, AttributeError) as e:
             raise ValueError(f"{path}: not a motion server's saved state ({e})") from None
         path.rename(path.with_name(path.name + ".restored"))     # restored once: a later crash cannot replay it
+
+
+def _rss_mb() -> float:
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
+    except (OSError, StopIteration, ValueError):
+        return float("nan")
 
 
 def _error(message: str, fatal: bool = False) -> str:
