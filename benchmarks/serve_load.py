@@ -2,6 +2,9 @@
 hostile clients for a while, and a SIGTERM and restart mid-run.
 
     python -m benchmarks.serve_load --bundle .cache/tiny-*/bundle --clients 200 --characters 4 --minutes 10
+    python -m benchmarks.serve_load --bundle ... --clients 100 --minutes 2 --simple [--ray 2]   # clients only: real
+                                        time and latency, of the plain server or of Ray Serve with 2 replicas (a head
+                                        and a worker node started here, one CPU each)
 
 Every client checks every character's sequence numbers (no token lost, repeated or out of order, across the
 restart too) and times each tick message from the server's TICK stamp to its arrival (one machine: one monotonic
@@ -205,6 +208,8 @@ async def main_async(args) -> dict:
         threading.Thread(target=read_status, daemon=True).start()
         return proc
 
+    if args.simple:
+        return await simple(args, port, url, env)
     proc = start()
     stats, stop = Stats(), asyncio.Event()
     rng = random.Random(args.seed)
@@ -251,6 +256,52 @@ async def main_async(args) -> dict:
     }
 
 
+async def simple(args, port: int, url: str, env: dict) -> dict:
+    """Clients only, for `minutes`: how close to real time their characters' tokens come, and how late."""
+    from mogo_runtime import MotionGenerator
+
+    ray = str(Path(sys.executable).parent / "ray")
+    if args.ray:
+        head = _free_port()
+        subprocess.run([ray, "start", "--head", f"--port={head}", "--num-cpus=1", "--include-dashboard=false",
+                        "--disable-usage-stats"], check=True, capture_output=True)
+        subprocess.run([ray, "start", f"--address=127.0.0.1:{head}", "--num-cpus=1", "--disable-usage-stats"],
+                       check=True, capture_output=True)
+        subprocess.run([sys.executable, "-m", "mogo_runtime.cli", "serve", str(args.bundle), "--ray", "--detach",
+                        "--replicas", str(args.ray), "--port", str(port), "--ray-address", f"127.0.0.1:{head}",
+                        "--variant", args.variant, "--characters-per-connection", str(args.characters)],
+                       check=True, env=env, capture_output=True)
+        url += "/"
+    else:
+        proc = subprocess.Popen([sys.executable, "-m", "mogo_runtime.cli", "serve", str(args.bundle), "--port",
+                                 str(port), "--variant", args.variant, "--characters-per-connection",
+                                 str(args.characters), "--characters", str(args.clients * args.characters + 10)],
+                                env=env, stderr=subprocess.PIPE, text=True)
+        proc.stderr.readline()
+    try:
+        stats, stop = Stats(), asyncio.Event()
+        rng = random.Random(args.seed)
+        tasks = [asyncio.create_task(client(n, url, args.characters, stop, stats, random.Random(rng.random())))
+                 for n in range(args.clients)]
+        await asyncio.sleep(20)                          # everyone connected and adding
+        start_tokens, began = stats.tokens, time.monotonic()
+        await asyncio.sleep(60 * args.minutes)
+        rate = (stats.tokens - start_tokens) / (time.monotonic() - began) / (args.clients * args.characters)
+        stop.set()
+        await asyncio.gather(*tasks)
+    finally:
+        if args.ray:
+            subprocess.run([ray, "stop", "--force"], capture_output=True)
+        else:
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(60)
+    dims = MotionGenerator(args.bundle, variant=args.variant).dims
+    late = [x for t, x in stats.latency if t > began]
+    return {"server": f"ray, {args.ray} replica(s)" if args.ray else "plain", "characters": args.clients *
+            args.characters, "real_time": rate / (dims.fps / dims.downsample), "errors": stats.errors[:10],
+            "latency_ms": {"p50": 1e3 * percentile(late, 50), "p99": 1e3 * percentile(late, 99)}}
+
+
 def check_sample(args, stats: Stats, n: int = 12) -> str:
     """A sample of characters generated again alone: the same tokens, the restart included."""
     from mogo_runtime import MotionGenerator
@@ -288,6 +339,8 @@ def main():
     ap.add_argument("--characters", type=int, default=4)
     ap.add_argument("--minutes", type=float, default=10)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--simple", action="store_true", help="clients only: real time and latency")
+    ap.add_argument("--ray", type=int, default=0, metavar="REPLICAS", help="with --simple: on Ray Serve")
     ap.add_argument("--out", type=Path, help="write the results as JSON here too")
     ap.add_argument("--hostile", metavar="URL", help=argparse.SUPPRESS)    # the attackers' process
     args = ap.parse_args()

@@ -244,3 +244,26 @@ def test_sigterm_saves_and_a_restarted_server_resumes_every_character(gen, porta
     for i, (prompt, seed) in zip(ids, PROMPTS):
         want = reference_tokens(gen, prompt, seed, 25, switches.get(i))
         np.testing.assert_array_equal(np.stack(got[i][:25]), want)
+
+
+@pytest.mark.parametrize("argv, env, needle", [
+    ([], {}, "a bearer token of at least 16 characters is required"),
+    ([], {"MOGO_SERVE_TOKEN": "short"}, "a bearer token of at least 16 characters"),
+    (["--token-file", "/nonexistent/token"], {}, "--token-file /nonexistent/token: No such file"),
+    (["--token-file", "BIG"], {}, "over 4096 bytes"),
+    (["--port", "70000"], {"MOGO_SERVE_TOKEN": TOKEN}, "--port must be a port in [0, 65535]"),
+    (["--characters", "0"], {"MOGO_SERVE_TOKEN": TOKEN}, "--characters must be an int >= 1"),
+    (["--variant", "int8"], {"MOGO_SERVE_TOKEN": TOKEN}, "a crowd steps its characters together"),
+])
+def test_mogo_serve_refuses_what_would_not_work_in_one_line(portable_toy_bundle, tmp_path, monkeypatch, capsys,  # noqa: F811
+                                                            argv, env, needle):
+    from mogo_runtime.cli import main
+
+    monkeypatch.delenv("MOGO_SERVE_TOKEN", raising=False)
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    (tmp_path / "big").write_text("x" * 5000)
+    argv = [str(tmp_path / "big") if a == "BIG" else a for a in argv]
+    assert main(["serve", str(portable_toy_bundle), *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mogo: error: ") and err.count("\n") == 1 and needle in err, err

@@ -64,11 +64,18 @@ def read_token(path: Path | None) -> str:
 def run(args: argparse.Namespace) -> int:
     import asyncio
 
+    from ..checks import as_int
     from ..generator import MotionGenerator
     from ..outputs.extras import require
     from .protocol import Limits
     from .server import MotionServer
 
+    as_int("--port", args.port, "a port in [0, 65535] (0: any free one)", 0, 65535)
+    as_int("--characters-per-connection", args.characters_per_connection, "an int >= 1", 1)
+    as_int("--characters", args.characters, "an int >= 1", 1)
+    as_int("--replicas", args.replicas, "an int >= 1", 1)
+    if not args.status >= 0:
+        raise ValueError(f"--status must be seconds >= 0, got {args.status}")
     require("ray" if args.ray else "serve")
     token = read_token(args.token_file)
     limits = Limits(characters_per_connection=args.characters_per_connection, characters=args.characters)
