@@ -7,6 +7,10 @@
 // variant (default compact where offered, else int8, else fp32), threads (onnxruntime-web threads; more than 1 only where the
 // page is cross-origin isolated), prompt, seed.
 //
+// Server mode, `?server=ws://host:port&token=T` (remote.js): a `mogo serve` generates and the page decodes its
+// tokens with the bundle's lookup and decoder alone (variant: the server's, default compact). No worker, no step
+// graph, no text encoder: Stream adds the page's character, Set prompt and clicks are requests to the server.
+//
 // window.mogoPage is what the browser test reads (web/test/page.test.mjs): the motion on screen with its tokens (a
 // stream's as they are picked), its walkTo requests, the camera, and the timings.
 
@@ -33,6 +37,8 @@ const bundleUrl = new URL(bundleParam.endsWith('/') ? bundleParam : `${bundlePar
 const isolated = globalThis.crossOriginIsolated === true;
 const threadsAsked = Math.max(1, Number.parseInt(params.get('threads') || '1', 10) || 1);
 const threads = isolated ? Math.min(threadsAsked, navigator.hardwareConcurrency || 1) : 1;
+const serverUrl = params.get('server');   // server mode
+let remote = null;                        // server mode's Remote (remote.js), once connected
 
 const page = {
   manifest: null,
@@ -48,7 +54,7 @@ const page = {
   errors: [],
   renderFps: 0,
 };
-const worker = new Worker(new URL('./worker.js', import.meta.url), { type: 'module' });
+const worker = serverUrl ? null : new Worker(new URL('./worker.js', import.meta.url), { type: 'module' });
 let viewer = null, marker = null;
 const waiting = new Map();   // message id -> {resolve, reject}, for generate and load
 
@@ -57,7 +63,8 @@ window.mogoPage = {
   get state() {
     return { variant: page.variant, busy: page.busy, endless: page.endless, errors: page.errors.slice(),
       variants: [...$('variant').options].map((o) => o.value), frames: page.motion?.frames.length ?? 0,
-      shown: viewer?.player.index ?? -1, shows: page.shows, stats: { ...page.stats }, renderFps: page.renderFps, threads, isolated };
+      shown: viewer?.player.index ?? -1, shows: page.shows, stats: { ...page.stats }, renderFps: page.renderFps, threads, isolated,
+      server: serverUrl, session: remote?.client.session ?? null };
   },
   /** The motion on screen: tokens (clips), the joints of every frame (flat, as the runtime gave them). */
   motion() {
@@ -106,6 +113,33 @@ async function loadBundle() {
   const variant = offered.includes(wanted) ? wanted : DEFAULT_VARIANTS.find((v) => offered.includes(v)) ?? offered[0];
   await loadVariant(variant);
   await probeVariants(others.filter((v) => !offered.includes(v)));
+}
+
+/** Server mode: the decoder and the connection instead of the generator (remote.js). */
+async function connectServer() {
+  setBusy('loading');
+  const variant = params.get('variant') || 'compact';
+  const { Remote } = await import('./remote.js');   // onnxruntime-web on this thread: only in server mode
+  const t0 = performance.now();
+  remote = await Remote.connect({ url: serverUrl, token: params.get('token') ?? '', bundleUrl, variant, onStatus: status });
+  const m = remote.decoder.bundle.manifest;
+  page.manifest = m;
+  page.endless = true;   // a server's characters go on until removed (or their seconds end)
+  page.variant = variant;
+  page.mode = 'stream';  // what Enter does when no stream runs: a server makes no clips
+  page.stats.loadMs = performance.now() - t0;
+  $('bundle-info').textContent = `server ${serverUrl} (session ${remote.client.session}): its tokens decoded here with `
+    + `the ${variant} lookup and decoder of ${bundleUrl.replace(root.href, '')} (${m.skeleton.name} skeleton, ${m.model.fps} fps)`
+    + `${m.control ? '; control (click the ground while streaming: the character walks there)' : ''}`;
+  $('stream').textContent = 'Stream (from the server)';
+  $('variant').replaceChildren(new Option(variant, variant));
+  viewer = new SkeletonViewer($('view'), m.skeleton);
+  marker = new GoalMarker(viewer.scene);
+  if (m.control) onGroundClick(viewer, walkTo);
+  requestAnimationFrame(draw);
+  remote.pump({ onFrames: remoteFrames, onSwitch: remoteSwitch, onEnd: remoteEnd });
+  status(`connected to ${serverUrl} in ${(page.stats.loadMs / 1000).toFixed(1)} s: type a prompt and press Stream`);
+  setBusy(null);
 }
 
 function isKnown(manifest, variant) {
@@ -196,6 +230,7 @@ async function generateClip() {
 }
 
 function startStream() {
+  if (remote) return startRemoteStream();
   const { text, seed } = readInputs();
   page.mode = 'stream';
   stopStream();
@@ -213,7 +248,8 @@ function startStream() {
 function setPrompt() {
   const text = $('prompt').value;
   if (!page.stream || !text.trim()) return;
-  worker.postMessage({ type: 'setPrompt', id: page.stream.id, text });
+  if (remote) remote.setPrompt(text).catch(fail);
+  else worker.postMessage({ type: 'setPrompt', id: page.stream.id, text });
   status(`switching to "${text}" at the next token`);
 }
 
@@ -223,15 +259,77 @@ function walkTo(goal) {
     status('press Stream first: a click on the ground sends the streaming character there');
     return;
   }
-  worker.postMessage({ type: 'walkTo', id: page.stream.id, goal });
+  if (remote) remote.walkTo(goal).catch(fail);
+  else worker.postMessage({ type: 'walkTo', id: page.stream.id, goal });
   marker.show(goal);
   status(`walking to (${goal[0].toFixed(2)}, ${goal[1].toFixed(2)}) from the next token`);
 }
 
 function stopStream() {
   if (!page.stream) return;
-  worker.postMessage({ type: 'stop', id: page.stream.id });
+  if (remote) remote.stop().catch(fail);
+  else worker.postMessage({ type: 'stop', id: page.stream.id });
   streamOver();
+}
+
+// ---- server mode: the page's character on the server ------------------------------------------------------
+
+async function startRemoteStream() {
+  const { text, seed, seconds } = readInputs();
+  page.mode = 'stream';
+  stopStream();
+  setBusy('streaming');
+  status(`adding "${text}" (seed ${seed}) on the server...`);
+  const fps = page.manifest.model.fps;
+  // shown before the add's reply: the character's first frames may come in the same turn as it
+  show({ kind: 'stream', texts: [text], seed, variant: page.variant, fps, tokens: null, levels: page.manifest.model.numLevels,
+    switches: [], frames: [], picked: [], walks: [], arrivals: [] }, true);
+  page.stream = { id: null, t0: performance.now(), firstMs: null, busyMs: 0, tokens: 0 };
+  const stream = page.stream;
+  let id;
+  try {
+    id = await remote.start(text, { seed, seconds });
+  } catch (e) {   // refused (a limit, a blank prompt) or disconnected: no stream
+    if (page.stream === stream) streamOver();
+    throw e;
+  }
+  if (page.stream !== stream) return;   // stopped meanwhile
+  stream.id = id;
+  status(`streaming "${text}" (seed ${seed}) from the server: type a new prompt and press Enter or "Set prompt"`);
+}
+
+function remoteFrames(ident, frames) {
+  const s = page.stream;
+  if (!s || (s.id !== null && s.id !== ident)) return;
+  s.id = ident;   // frames may come before add's reply has been handed over
+  const now = performance.now();
+  if (s.firstMs === null) s.firstMs = now - s.t0;
+  const J3 = page.manifest.skeleton.parents.length * 3, count = frames.joints.length / J3;
+  for (let i = 0; i < count; i++) {
+    const f = frames.joints.subarray(i * J3, (i + 1) * J3);
+    page.motion.frames.push(f);
+    viewer.player.push(f);
+  }
+  if (frames.index === 0) setBusy(page.busy);   // the downloads have something to write now
+  s.tokens = remote.client.nextSeq.get(ident) ?? 0;
+  s.busyMs = now - s.t0 - s.firstMs;   // since the first frame: the server sends in real time
+  const n = page.motion.frames.length;
+  page.stats.stream = { firstFrameMs: s.firstMs, frames: n, tokens: s.tokens, busyMs: s.busyMs,
+    generatedFps: s.busyMs > 0 ? n / (s.busyMs / 1000) : 0, stalls: viewer.player.stalls };
+}
+
+function remoteSwitch(text) {
+  const m = page.motion;
+  if (!page.stream || !m || text === m.texts[m.texts.length - 1]) return;
+  // the token a PROMPT event names is the decoder's; the frame is where the page saw it (the switch is at or before it)
+  m.switches.push({ token: null, text, frame: m.frames.length });
+  m.texts.push(text);
+  status(`now following "${text}" (from frame ${m.frames.length} on)`);
+}
+
+function remoteEnd(error) {
+  if (page.stream) streamOver();
+  fail(new Error(`the server's stream stopped: ${error.message}`));
 }
 
 /** The stream is not running any more (stopped, ended or failed): what was received plays as a clip. */
@@ -252,14 +350,14 @@ function show(motion, live) {
   $('play').textContent = 'Pause';
 }
 
-worker.onerror = (event) => {   // the worker's script did not load or threw outside a command
+const onWorkerError = (event) => {   // the worker's script did not load or threw outside a command
   const e = new Error(`the generator's worker failed: ${event.message || 'its script could not be loaded'}`);
   for (const { reject } of waiting.values()) reject(e);
   waiting.clear();
   fail(e);
 };
 
-worker.onmessage = ({ data: msg }) => {
+const onWorkerMessage = ({ data: msg }) => {
   const pending = waiting.get(msg.id);
   switch (msg.type) {
     case 'status':
@@ -334,6 +432,11 @@ worker.onmessage = ({ data: msg }) => {
   }
 };
 
+if (worker) {
+  worker.onerror = onWorkerError;
+  worker.onmessage = onWorkerMessage;
+}
+
 // ---- drawing --------------------------------------------------------------------------------------------
 
 let lastTime = null, frameCount = 0, fpsSince = null, lastPlayed = -1;
@@ -345,9 +448,13 @@ function draw(now) {
   viewer.player.loop = $('loop').checked;
   viewer.frame(dt);
   const p = viewer.player;
-  if (page.stream && p.index !== lastPlayed) {   // tells the worker how far to decode ahead
+  if (worker && page.stream && p.index !== lastPlayed) {   // tells the worker how far to decode ahead
     lastPlayed = p.index;
     worker.postMessage({ type: 'played', id: page.stream.id, frame: p.index });
+  }
+  if (remote?.ended && page.stream) {
+    streamOver();
+    status(`the character's seconds are over: the server ended its stream after ${page.motion.frames.length} frames`);
   }
   frameCount += 1;
   if (fpsSince === null) fpsSince = now;
@@ -378,11 +485,11 @@ function updateReadout() {
 function setBusy(what) {
   page.busy = what;
   const loaded = page.variant !== null && what !== 'loading';
-  $('generate').disabled = !loaded || what === 'generating';
+  $('generate').disabled = !loaded || what === 'generating' || serverUrl !== null;   // a server streams only
   $('stream').disabled = !loaded || what === 'generating';
   $('set-prompt').disabled = what !== 'streaming' || !page.endless;
   $('stop').disabled = what !== 'streaming';
-  $('variant').disabled = what === 'loading' || what === 'generating';
+  $('variant').disabled = what === 'loading' || what === 'generating' || serverUrl !== null;
   const hasMotion = () => page.motion && page.motion.frames.length > 0;
   $('download-bvh').disabled = !hasMotion();
   $('download-json').disabled = !hasMotion();
@@ -446,7 +553,7 @@ $('prompt').addEventListener('keydown', (e) => {
 if (params.get('prompt')) $('prompt').value = params.get('prompt');
 if (params.get('seed')) $('seed').value = params.get('seed');
 setBusy('loading');
-window.mogoPage.ready = loadBundle().then(() => true, (e) => {
+window.mogoPage.ready = (serverUrl ? connectServer() : loadBundle()).then(() => true, (e) => {
   fail(e);
   setBusy(null);
   return false;

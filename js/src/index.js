@@ -7,7 +7,7 @@
 //   motion.joints   // {data: Float32Array, dims: [frames, 22, 3]}, metres, y up
 //
 // A machine that only shows motion generated elsewhere decodes a token stream (wire/) with MotionClient, which
-// opens the lookup and decoder graphs alone.
+// opens the lookup and decoder graphs alone; ServerClient (serve/) gets that stream from a `mogo serve`.
 
 export { MotionGenerator, FrameStream, MAX_SECONDS, checkTexts } from './generator.js';
 export { Bundle } from './bundle/folder.js';
@@ -30,6 +30,7 @@ export { FollowPath, GameRoot, Steer, WalkTo } from './control/targets.js';
 export { controlDim, decode as decodeControl, encode as encodeControl } from './control/vector.js';
 export { jointsToBvhText } from './outputs/bvh.js';
 export { MAX_CHARACTERS, MotionClient } from './wire/client.js';
+export { ConnectionClosed, ServerClient, ServerError } from './serve/client.js';
 export { RecordReader, WireError, decoderId, encode as encodeRecord, helloFor, readMessage } from './wire/format.js';
 // the whole token-stream format (records, constants), as Python's `from mogo_runtime.wire import format as wire`
 export * as wire from './wire/format.js';

@@ -5,9 +5,11 @@
 #   2. build the toy bundles of tests/runtime/toy_bundle.py (with and without a streaming section, with the
 #      portable, int8_fixed and ORT-format variants, and with control) in a temporary folder, with the repository's
 #      venv, and broken copies of them (test/make_broken.py);
-#   3. write what the Python runtime gives on them (js/test/make_reference.py), and the token streams it writes and
-#      decodes (js/test/make_wire_reference.py);
-#   4. run `node --test`, which compares and prints the parity numbers (lines starting "parity:").
+#   3. write what the Python runtime gives on them (js/test/make_reference.py), the token streams it writes and
+#      decodes (js/test/make_wire_reference.py), and what a motion server's clients must get
+#      (js/test/make_serve_reference.py);
+#   4. run `node --test`, which compares and prints the parity numbers (lines starting "parity:"); test/serve.test.mjs
+#      starts `mogo serve` on the portable toy itself (and stops it, however the test ends).
 #
 # Environment:
 #   PYTHON=...               the Python with mogo_runtime, onnxruntime, tokenizers (default .venv/bin/python)
@@ -60,6 +62,11 @@ done
 
 "$PY" "$JS/test/make_reference.py" --out "$WORK/reference" "${BUNDLES[@]}"
 "$PY" "$JS/test/make_wire_reference.py" --out "$WORK/reference" --compact "$WORK/toy-portable" --steered "$WORK/toy-control"
+"$PY" "$JS/test/make_serve_reference.py" --out "$WORK/reference" --bundle "$WORK/toy-portable"
 cd "$JS"
-MOGO_JS_REFERENCE="$WORK/reference" MOGO_JS_TOY="$WORK/toy" MOGO_JS_TOY_CONTROL="$WORK/toy-control" \
+# the server's client (test/serve.test.mjs) uses the global WebSocket: Node 22 has it, Node 20 behind a flag
+if ! node -e 'process.exit(typeof WebSocket === "function" ? 0 : 1)'; then
+  export NODE_OPTIONS="${NODE_OPTIONS:-} --experimental-websocket"
+fi
+PYTHON="$PY" MOGO_JS_REFERENCE="$WORK/reference" MOGO_JS_TOY="$WORK/toy" MOGO_JS_TOY_CONTROL="$WORK/toy-control" \
   MOGO_JS_BROKEN="$WORK/broken" node --test test/*.test.mjs

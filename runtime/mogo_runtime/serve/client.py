@@ -4,8 +4,8 @@ requests, and receive their records; with a bundle, their frames too (decoded he
     async with await ServerClient.connect("ws://127.0.0.1:8765", token, bundle="bundles/base", variant="compact") as c:
         walker = await c.add("a person walks forward", seed=1)
         await c.request(walker, goal=[4.0, 2.0])
-        async for ident, frames in c.frames():          # (n, J, 3) joints as they are decoded
-            ...
+        while True:
+            ident, frames = await c.next()               # (n, J, 3) joints as they are decoded
 
 `next_seq` holds the next token expected of each character: `reconnect()` hands it to the server, which sends what
 was missed, so a dropped connection (or a server restarted on its saved state) loses and repeats nothing.
@@ -71,7 +71,8 @@ class ServerClient:
                     if reply.get("op") == "error":
                         error = ServerError(reply["message"], reply["fatal"])
                         self.errors.append(error)
-                        await self._replies.put(error)
+                        if reply["fatal"] or reply.get("about") in ("add", "remove"):    # what a caller waits for
+                            await self._replies.put(error)
                     else:
                         await self._replies.put(reply)
                     continue
@@ -89,9 +90,11 @@ class ServerClient:
                 else:
                     for ident, frames in self.decoder.apply(records).items():
                         await self.records.put((ident, frames))
+            closed = ConnectionError("the server closed the connection")     # a clean close ends the loop
         except Exception as e:       # the connection closed, or a stream the decoder refuses: the caller sees it
-            await self._replies.put(e)
-            await self.records.put(e)
+            closed = e
+        await self._replies.put(closed)
+        await self.records.put(closed)
 
     async def _reply(self, op: str) -> dict:
         reply = await self._replies.get()

@@ -78,12 +78,12 @@ class MotionReplica:
 
         self.server = MotionServer(MotionGenerator(bundle, variant=variant, threads=threads), token, limits,
                                    origins=origins)
-        self.origins, self.max_size = origins, limits.max_message_bytes
+        self.origins, self.max_size = self.server.origins, limits.max_message_bytes
         self.stop, self.ticking = asyncio.Event(), None
 
     @app.websocket("/")
     async def connect(self, websocket: WebSocket) -> None:
-        if self.origins is not None and websocket.headers.get("origin") not in self.origins:
+        if websocket.headers.get("origin") not in self.origins:
             await websocket.close(1008)            # before accepting: the handshake is refused (HTTP 403)
             return
         if self.ticking is None:                   # the replica's own loop: tick there, from the first client on

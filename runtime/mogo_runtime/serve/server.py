@@ -67,7 +67,9 @@ class MotionServer:
                  origins: list[str] | None = None, speed: float = 1.0, status_seconds: float = 0.0):
         if len(token) < 16:
             raise ValueError("the server's bearer token must be at least 16 characters")
-        self.gen, self.token, self.limits, self.origins = gen, token.encode(), limits, origins
+        # browsers send an Origin: only those listed connect; None stands for clients that send none (not browsers)
+        self.origins = [None] if origins is None else list(origins)
+        self.gen, self.token, self.limits = gen, token.encode(), limits
         self.crowd = Crowd(gen, max_characters=limits.characters)
         self.hello = wire.encode(wire.hello_for(gen.bundle.manifest, gen.variant))
         self.period = gen.dims.downsample / gen.dims.fps / speed
@@ -127,7 +129,7 @@ class MotionServer:
                     raise Refused(f"the server holds {self.limits.characters} characters, its limit")
                 c = self.crowd.add(msg["prompt"], seed=msg.get("seed", 0), seconds=msg.get("seconds"))
             except ValueError as e:
-                return [(session, _error(str(e)))]
+                return [(session, _error(str(e), about="add"))]
             session.characters[ident] = Hosted(c, CharacterTap(c, ident))
             return [(session, json.dumps({"op": "added", "id": ident, "ref": msg.get("ref")}))]
         return run
@@ -149,7 +151,7 @@ class MotionServer:
                     return []
                 request_from({k: v for k, v in msg.items() if k not in ("op", "id")}).apply(h.character)
             except ValueError as e:
-                return [(session, _error(str(e)))]
+                return [(session, _error(str(e), about=msg["op"]))]
             return []
         return run
 
@@ -365,8 +367,9 @@ def _rss_mb() -> float:
         return float("nan")
 
 
-def _error(message: str, fatal: bool = False) -> str:
-    return json.dumps({"op": "error", "fatal": fatal, "message": message})
+def _error(message: str, fatal: bool = False, about: str | None = None) -> str:
+    """`about`: the op of the message refused (a client waiting for one reply tells the others apart)."""
+    return json.dumps({"op": "error", "fatal": fatal, "message": message, "about": about})
 
 
 async def _close(ws, message: str) -> None:
