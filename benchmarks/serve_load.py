@@ -263,10 +263,11 @@ async def simple(args, port: int, url: str, env: dict) -> dict:
     ray = str(Path(sys.executable).parent / "ray")
     if args.ray:
         head = _free_port()
+        cluster = dict(os.environ, RAY_SERVE_PROXY_PREFER_LOCAL_NODE_ROUTING="0")   # docs/serve.md, "Ray Serve"
         subprocess.run([ray, "start", "--head", f"--port={head}", "--num-cpus=1", "--include-dashboard=false",
-                        "--disable-usage-stats"], check=True, capture_output=True)
+                        "--disable-usage-stats"], check=True, capture_output=True, env=cluster)
         subprocess.run([ray, "start", f"--address=127.0.0.1:{head}", "--num-cpus=1", "--disable-usage-stats"],
-                       check=True, capture_output=True)
+                       check=True, capture_output=True, env=cluster)
         subprocess.run([sys.executable, "-m", "mogo_runtime.cli", "serve", str(args.bundle), "--ray", "--detach",
                         "--replicas", str(args.ray), "--port", str(port), "--ray-address", f"127.0.0.1:{head}",
                         "--variant", args.variant, "--characters-per-connection", str(args.characters)],
