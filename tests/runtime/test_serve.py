@@ -270,3 +270,29 @@ def test_mogo_serve_refuses_what_would_not_work_in_one_line(portable_toy_bundle,
     assert main(["serve", str(portable_toy_bundle), *argv]) == 2
     err = capsys.readouterr().err
     assert err.startswith("mogo: error: ") and err.count("\n") == 1 and needle in err, err
+
+
+def test_joints_on_request_are_the_crowd_s(gen):
+    async def main():
+        server, url, stop, task = await running(gen)
+        c = await ServerClient.connect(url, TOKEN)
+        ident = await c.add("a person walks forward", seed=1)
+        await c.joints(ident, True)
+        joints = []
+        while sum(len(j.joints) for j in joints) < 40:
+            r = await asyncio.wait_for(c.next(), 30)
+            if isinstance(r, wire.Joints):
+                assert not joints or r.frame == joints[-1].frame + len(joints[-1].joints)    # frames follow on
+                joints.append(r)
+        await c.close()
+        stop.set()
+        await task
+        return joints
+    got = asyncio.run(main())
+    crowd = Crowd(gen)                      # the server's crowd decodes 4 tokens at a time, from token 0
+    ch = crowd.add("a person walks forward", seed=1)
+    want = [f for f in (crowd.tick().get(ch) for _ in range(40)) if f is not None]
+    first = next(i for i, f in enumerate(want) if f.index == got[0].frame)
+    for record, frames in zip(got, want[first:]):
+        assert record.frame == frames.index
+        np.testing.assert_array_equal(record.joints, frames.joints)
