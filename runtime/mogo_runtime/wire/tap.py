@@ -49,11 +49,14 @@ class CharacterTap:
         """The records since the last read, in stream order: events, then tokens, then root corrections."""
         c, out = self.character, self.pending
         self.pending = []
-        switches = list(c.switches)
-        seen = next((i + 1 for i in range(len(switches) - 1, -1, -1) if switches[i] is self.switch), 0)
-        for seq, text in switches[seen:]:
+        new = []          # the switches after the last one sent, found from the newest back (a tick reads one or none)
+        for switch in reversed(c.switches):
+            if switch is self.switch:
+                break
+            new.append(switch)
+        for seq, text in reversed(new):
             out.append(Event(self.ident, seq, PROMPT, text))
-        self.switch = switches[-1] if switches else None
+        self.switch = c.switches[-1] if c.switches else None
         if c.steering is not None and c.steering.target is not self.target:
             self.target = c.steering.target
             out.append(Event(self.ident, self.sent, CONTROL, describe(self.target)))
