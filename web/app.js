@@ -1,7 +1,7 @@
 // The page: pick a bundle variant, type a prompt, watch the skeleton move as frames stream in, change the prompt
 // mid-stream, send the character where you click on the ground (bundles with control: walk.js), download BVH / JSON.
-// Generation runs in worker.js; this module draws (viewer.js) and keeps the motion on screen for the downloads
-// (files.js).
+// Generation runs in worker.js; what is on screen (the motion, kept for the downloads in files.js, the status line)
+// is screen.js's.
 //
 // URL parameters: bundle (a folder relative to the repository root, or an absolute URL; default bundles/base),
 // variant (default compact where offered, else int8, else fp32), threads (onnxruntime-web threads; more than 1 only where the
@@ -16,8 +16,8 @@
 
 import { Bundle, WEIGHT_INT8, urlLoader } from '../js/src/index.js';
 import { bvhText, download, fileStem, jsonText } from './files.js';
-import { SkeletonViewer } from './viewer.js';
-import { GoalMarker, cameraState, onGroundClick } from './walk.js';
+import { $, fail, openViewer, page, receiveFrames, setBusy, show, showStream, status, streamOver, view } from './screen.js';
+import { cameraState } from './walk.js';
 
 const AHEAD_SECONDS = 1;   // how far a stream is decoded ahead of what is shown: a new prompt shows within this
 // Variants this runtime is known to run (its tests cover them, js/test and web/test): fp32, int8 made by dynamic
@@ -29,7 +29,6 @@ const KNOWN_VARIANTS = new Set(['fp32', 'int8', 'compact']);
 const KNOWN_QUANTIZATION = new Set(['onnxruntime.quantize_dynamic', 'dynamic', WEIGHT_INT8]);
 const DEFAULT_VARIANTS = ['compact', 'int8'];   // the first offered is loaded, else the first variant offered
 
-const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
 const root = new URL('../', import.meta.url);
 const bundleParam = params.get('bundle') || 'bundles/base';
@@ -40,22 +39,8 @@ const threads = isolated ? Math.min(threadsAsked, navigator.hardwareConcurrency 
 const serverUrl = params.get('server');   // server mode
 let remote = null;                        // server mode's Remote (remote.js), once connected
 
-const page = {
-  manifest: null,
-  variant: null,
-  endless: false,
-  busy: null,          // 'loading' | 'generating' | 'streaming' | null
-  mode: 'clip',        // the last of Generate clip / Stream pressed: what Enter does when no stream runs
-  motion: null,        // on screen: {kind, texts, seed, variant, fps, tokens, levels, switches, frames[], picked[],
-                       // walks: [{goal, token, frame}], arrivals: [frame]}
-  runId: 0,
-  shows: 0,            // motions put on screen so far
-  stats: {},
-  errors: [],
-  renderFps: 0,
-};
+page.server = serverUrl !== null;
 const worker = serverUrl ? null : new Worker(new URL('./worker.js', import.meta.url), { type: 'module' });
-let viewer = null, marker = null;
 const waiting = new Map();   // message id -> {resolve, reject}, for generate and load
 
 window.mogoPage = {
@@ -63,7 +48,7 @@ window.mogoPage = {
   get state() {
     return { variant: page.variant, busy: page.busy, endless: page.endless, errors: page.errors.slice(),
       variants: [...$('variant').options].map((o) => o.value), frames: page.motion?.frames.length ?? 0,
-      shown: viewer?.player.index ?? -1, shows: page.shows, stats: { ...page.stats }, renderFps: page.renderFps, threads, isolated,
+      shown: view.viewer?.player.index ?? -1, shows: page.shows, stats: { ...page.stats }, renderFps: page.renderFps, threads, isolated,
       server: serverUrl, session: remote?.client.session ?? null };
   },
   /** The motion on screen: tokens (clips), the joints of every frame (flat, as the runtime gave them). */
@@ -74,7 +59,7 @@ window.mogoPage = {
       tokens: m.tokens ? Array.from(m.tokens) : null, levels: m.levels, switches: m.switches, picked: m.picked,
       walks: m.walks, arrivals: m.arrivals, joints: m.frames.flatMap((f) => Array.from(f)), numFrames: m.frames.length };
   },
-  camera: () => cameraState(viewer),
+  camera: () => cameraState(view.viewer),
 };
 
 // ---- loading --------------------------------------------------------------------------------------------
@@ -106,9 +91,7 @@ async function loadBundle() {
   const offered = wanted && others.includes(wanted) ? [...known, wanted] : known;   // asked for by name: tried
   $('variant').replaceChildren(...offered.map((v) => new Option(v, v)));
 
-  viewer = new SkeletonViewer($('view'), m.skeleton);
-  marker = new GoalMarker(viewer.scene);
-  if (m.control && page.endless) onGroundClick(viewer, walkTo);
+  openViewer(m.skeleton, m.control && page.endless ? walkTo : null);
   requestAnimationFrame(draw);
   const variant = offered.includes(wanted) ? wanted : DEFAULT_VARIANTS.find((v) => offered.includes(v)) ?? offered[0];
   await loadVariant(variant);
@@ -133,11 +116,9 @@ async function connectServer() {
     + `${m.control ? '; control (click the ground while streaming: the character walks there)' : ''}`;
   $('stream').textContent = 'Stream (from the server)';
   $('variant').replaceChildren(new Option(variant, variant));
-  viewer = new SkeletonViewer($('view'), m.skeleton);
-  marker = new GoalMarker(viewer.scene);
-  if (m.control) onGroundClick(viewer, walkTo);
+  openViewer(m.skeleton, m.control ? walkTo : null);
   requestAnimationFrame(draw);
-  remote.pump({ onFrames: remoteFrames, onSwitch: remoteSwitch, onEnd: remoteEnd });
+  remote.pump();
   status(`connected to ${serverUrl} in ${(page.stats.loadMs / 1000).toFixed(1)} s: type a prompt and press Stream`);
   setBusy(null);
 }
@@ -230,19 +211,15 @@ async function generateClip() {
 }
 
 function startStream() {
-  if (remote) return startRemoteStream();
-  const { text, seed } = readInputs();
+  const { text, seed, seconds } = readInputs();
   page.mode = 'stream';
   stopStream();
+  if (remote) return remote.start(text, { seed, seconds });
   const id = ++page.runId;
-  const fps = page.manifest.model.fps;
-  show({ kind: 'stream', texts: [text], seed, variant: page.variant, fps, tokens: null, levels: page.manifest.model.numLevels,
-    switches: [], frames: [], picked: [], walks: [], arrivals: [] }, true);
-  page.stream = { id, t0: performance.now(), firstMs: null, busyMs: 0, tokens: 0 };
-  page.stats.stream = null;
+  showStream(text, seed, id);
   setBusy('streaming');
   status(`streaming "${text}" (seed ${seed})${page.endless ? ': type a new prompt and press Enter or "Set prompt"' : ''}`);
-  worker.postMessage({ type: 'stream', id, text, seed, ahead: Math.round(AHEAD_SECONDS * fps) });
+  worker.postMessage({ type: 'stream', id, text, seed, ahead: Math.round(AHEAD_SECONDS * page.manifest.model.fps) });
 }
 
 function setPrompt() {
@@ -261,7 +238,7 @@ function walkTo(goal) {
   }
   if (remote) remote.walkTo(goal).catch(fail);
   else worker.postMessage({ type: 'walkTo', id: page.stream.id, goal });
-  marker.show(goal);
+  view.marker.show(goal);
   status(`walking to (${goal[0].toFixed(2)}, ${goal[1].toFixed(2)}) from the next token`);
 }
 
@@ -270,84 +247,6 @@ function stopStream() {
   if (remote) remote.stop().catch(fail);
   else worker.postMessage({ type: 'stop', id: page.stream.id });
   streamOver();
-}
-
-// ---- server mode: the page's character on the server ------------------------------------------------------
-
-async function startRemoteStream() {
-  const { text, seed, seconds } = readInputs();
-  page.mode = 'stream';
-  stopStream();
-  setBusy('streaming');
-  status(`adding "${text}" (seed ${seed}) on the server...`);
-  const fps = page.manifest.model.fps;
-  // shown before the add's reply: the character's first frames may come in the same turn as it
-  show({ kind: 'stream', texts: [text], seed, variant: page.variant, fps, tokens: null, levels: page.manifest.model.numLevels,
-    switches: [], frames: [], picked: [], walks: [], arrivals: [] }, true);
-  page.stream = { id: null, t0: performance.now(), firstMs: null, busyMs: 0, tokens: 0 };
-  const stream = page.stream;
-  let id;
-  try {
-    id = await remote.start(text, { seed, seconds });
-  } catch (e) {   // refused (a limit, a blank prompt) or disconnected: no stream
-    if (page.stream === stream) streamOver();
-    throw e;
-  }
-  if (page.stream !== stream) return;   // stopped meanwhile
-  stream.id = id;
-  status(`streaming "${text}" (seed ${seed}) from the server: type a new prompt and press Enter or "Set prompt"`);
-}
-
-function remoteFrames(ident, frames) {
-  const s = page.stream;
-  if (!s || (s.id !== null && s.id !== ident)) return;
-  s.id = ident;   // frames may come before add's reply has been handed over
-  const now = performance.now();
-  if (s.firstMs === null) s.firstMs = now - s.t0;
-  const J3 = page.manifest.skeleton.parents.length * 3, count = frames.joints.length / J3;
-  for (let i = 0; i < count; i++) {
-    const f = frames.joints.subarray(i * J3, (i + 1) * J3);
-    page.motion.frames.push(f);
-    viewer.player.push(f);
-  }
-  if (frames.index === 0) setBusy(page.busy);   // the downloads have something to write now
-  s.tokens = remote.client.nextSeq.get(ident) ?? 0;
-  s.busyMs = now - s.t0 - s.firstMs;   // since the first frame: the server sends in real time
-  const n = page.motion.frames.length;
-  page.stats.stream = { firstFrameMs: s.firstMs, frames: n, tokens: s.tokens, busyMs: s.busyMs,
-    generatedFps: s.busyMs > 0 ? n / (s.busyMs / 1000) : 0, stalls: viewer.player.stalls };
-}
-
-function remoteSwitch(text) {
-  const m = page.motion;
-  if (!page.stream || !m || text === m.texts[m.texts.length - 1]) return;
-  // the token a PROMPT event names is the decoder's; the frame is where the page saw it (the switch is at or before it)
-  m.switches.push({ token: null, text, frame: m.frames.length });
-  m.texts.push(text);
-  status(`now following "${text}" (from frame ${m.frames.length} on)`);
-}
-
-function remoteEnd(error) {
-  if (page.stream) streamOver();
-  fail(new Error(`the server's stream stopped: ${error.message}`));
-}
-
-/** The stream is not running any more (stopped, ended or failed): what was received plays as a clip. */
-function streamOver() {
-  page.stream = null;
-  viewer.player.live = false;
-  if (page.busy === 'streaming') setBusy(null);
-}
-
-/** Put a motion on screen (a clip whole, or a stream that frames will be pushed to). */
-function show(motion, live) {
-  page.motion = motion;
-  page.shows += 1;
-  marker.hide();
-  viewer.player.start({ fps: motion.fps, live });
-  for (const f of motion.frames) viewer.player.push(f);
-  viewer.player.playing = true;
-  $('play').textContent = 'Pause';
 }
 
 const onWorkerError = (event) => {   // the worker's script did not load or threw outside a command
@@ -372,25 +271,11 @@ const onWorkerMessage = ({ data: msg }) => {
       waiting.delete(msg.id);
       pending?.resolve(msg);
       break;
-    case 'frames': {
-      const s = page.stream;
-      if (!s || s.id !== msg.id) break;
-      if (s.firstMs === null) s.firstMs = performance.now() - s.t0;
-      const J3 = page.manifest.skeleton.parents.length * 3;
-      for (let i = 0; i < msg.count; i++) {
-        const f = msg.joints.subarray(i * J3, (i + 1) * J3);
-        page.motion.frames.push(f);
-        viewer.player.push(f);
-      }
+    case 'frames':
+      if (page.stream?.id !== msg.id) break;
       page.motion.picked.push(...msg.picked);
-      if (msg.start === 0) setBusy(page.busy);   // the downloads have something to write now
-      s.busyMs = msg.busyMs;
-      s.tokens = msg.tokens;
-      const frames = page.motion.frames.length;
-      page.stats.stream = { firstFrameMs: s.firstMs, frames, tokens: s.tokens, busyMs: s.busyMs,
-        generatedFps: frames / (s.busyMs / 1000), stalls: viewer.player.stalls };
+      receiveFrames(msg.joints, msg.count, { first: msg.start === 0, tokens: msg.tokens, busyMs: msg.busyMs });
       break;
-    }
     case 'switched':
       if (page.stream?.id === msg.id) {
         page.motion.switches.push({ token: msg.token, text: msg.text, frame: msg.frame });
@@ -444,10 +329,10 @@ let lastTime = null, frameCount = 0, fpsSince = null, lastPlayed = -1;
 function draw(now) {
   const dt = lastTime === null ? 0 : Math.min((now - lastTime) / 1000, 0.25);
   lastTime = now;
-  viewer.follow = $('follow').checked;
-  viewer.player.loop = $('loop').checked;
-  viewer.frame(dt);
-  const p = viewer.player;
+  view.viewer.follow = $('follow').checked;
+  view.viewer.player.loop = $('loop').checked;
+  view.viewer.frame(dt);
+  const p = view.viewer.player;
   if (worker && page.stream && p.index !== lastPlayed) {   // tells the worker how far to decode ahead
     lastPlayed = p.index;
     worker.postMessage({ type: 'played', id: page.stream.id, frame: p.index });
@@ -468,7 +353,7 @@ function draw(now) {
 }
 
 function updateReadout() {
-  const p = viewer.player, m = page.motion;
+  const p = view.viewer.player, m = page.motion;
   $('time').textContent = m ? `${(p.index / p.fps).toFixed(2)} s / ${(p.frames.length / p.fps).toFixed(2)} s`
     + ` (frame ${p.index + 1} of ${p.frames.length})` : '';
   const s = page.stats.stream, lines = [];
@@ -481,34 +366,6 @@ function updateReadout() {
 }
 
 // ---- controls -------------------------------------------------------------------------------------------
-
-function setBusy(what) {
-  page.busy = what;
-  const loaded = page.variant !== null && what !== 'loading';
-  $('generate').disabled = !loaded || what === 'generating' || serverUrl !== null;   // a server streams only
-  $('stream').disabled = !loaded || what === 'generating';
-  $('set-prompt').disabled = what !== 'streaming' || !page.endless;
-  $('stop').disabled = what !== 'streaming';
-  $('variant').disabled = what === 'loading' || what === 'generating' || serverUrl !== null;
-  const hasMotion = () => page.motion && page.motion.frames.length > 0;
-  $('download-bvh').disabled = !hasMotion();
-  $('download-json').disabled = !hasMotion();
-  $('progress').hidden = what !== 'generating';
-  if (what === 'generating') $('progress').value = 0;
-  document.body.dataset.busy = what ?? '';
-}
-
-function status(text) {
-  $('status').textContent = text;
-  $('status').classList.remove('error');
-}
-
-function fail(e) {
-  console.error(e);
-  page.errors.push(e.message);
-  $('status').textContent = e.message;
-  $('status').classList.add('error');
-}
 
 const guard = (fn) => async () => {
   try {
@@ -533,9 +390,9 @@ $('set-prompt').onclick = guard(setPrompt);
 $('stop').onclick = guard(stopStream);
 $('variant').onchange = guard(() => loadVariant($('variant').value));
 $('play').onclick = () => {
-  if (!viewer) return;
-  viewer.player.playing = !viewer.player.playing;
-  $('play').textContent = viewer.player.playing ? 'Pause' : 'Play';
+  if (!view.viewer) return;
+  view.viewer.player.playing = !view.viewer.player.playing;
+  $('play').textContent = view.viewer.player.playing ? 'Pause' : 'Play';
 };
 $('download-bvh').onclick = guard(() => download(bvhText(page.motion, page.manifest.skeleton),
   `${fileStem(page.motion)}.bvh`, 'text/plain'));

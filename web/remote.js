@@ -1,7 +1,7 @@
 // Server mode (?server=ws://host:port&token=T): the motion comes from a `mogo serve` (docs/serve.md), which
 // generates; this page only decodes. It opens the bundle's lookup and decoder graphs alone (MotionClient: no step
 // graph, no text encoder, no tokenizer) on onnxruntime-web, connects with the runtime's ServerClient, and hands
-// each character's frames to the page (app.js) as they are decoded.
+// the page's character's frames to the screen (screen.js) as they are decoded.
 //
 // Decoding runs on the page's thread: a tick is one token (4 frames on the toy and base), a small decode, so no
 // worker is needed. A dropped connection is resumed (reconnect: the server keeps a session's characters 30 s and
@@ -9,6 +9,7 @@
 
 import * as ort from './node_modules/onnxruntime-web/dist/ort.wasm.min.mjs';
 import { ConnectionClosed, MotionClient, ServerClient, ServerError, urlLoader } from '../js/src/index.js';
+import { fail, page, receiveFrames, setBusy, showStream, status, streamOver } from './screen.js';
 
 const RECONNECT_TRIES = 10, RECONNECT_SECONDS = 2;   // within the server's 30 s linger
 
@@ -31,31 +32,44 @@ export class Remote {
   }
 
   /**
-   * Hand frames over until the connection is given up: onFrames(ident, frames), onSwitch(text) when the server's
-   * stream says the character follows a new prompt, onEnd(error) once (null: closed by the page).
+   * Show the page's character's frames until the connection is given up (then the stream is over, with the error on
+   * the status line); a new prompt the server's stream names is marked where the page saw it.
    */
-  async pump({ onFrames, onSwitch, onEnd }) {
+  async pump() {
     for (;;) {
       let item;
       try {
         item = await this.client.next();
       } catch (e) {
         if (!(e instanceof ConnectionClosed) || !(await this.#resume(e))) {
-          onEnd(e);
+          if (page.stream) streamOver();
+          fail(new Error(`the server's stream stopped: ${e.message}`));
           return;
         }
         continue;
       }
       // the page's character: the one it adds may send frames before add's reply has been handed over
       const [ident, frames] = item;
-      if (this.removed.has(ident)) continue;
-      onFrames(ident, frames);
+      const s = page.stream;
+      if (this.removed.has(ident) || !s || (s.id !== null && s.id !== ident)) continue;
+      s.id = ident;
+      receiveFrames(frames.joints, frames.joints.length / (page.manifest.skeleton.parents.length * 3),
+        { first: frames.index === 0, tokens: this.client.nextSeq.get(ident) ?? 0 });
       const text = this.decoder.characters.get(ident)?.text;   // its PROMPT events, as the decoder read them
       if (text !== undefined && text !== this.text) {
         this.text = text;
-        onSwitch(text);
+        this.#switched(text);
       }
     }
+  }
+
+  #switched(text) {
+    const m = page.motion;
+    if (!m || text === m.texts[m.texts.length - 1]) return;
+    // the token a PROMPT event names is the decoder's; the frame is where the page saw it (the switch is at or before it)
+    m.switches.push({ token: null, text, frame: m.frames.length });
+    m.texts.push(text);
+    status(`now following "${text}" (from frame ${m.frames.length} on)`);
   }
 
   /** Reconnect after a drop, a few times; -> whether it worked. */
@@ -74,12 +88,23 @@ export class Remote {
     return false;
   }
 
-  /** The page's one character: added with `text` (the one before it removed). */
+  /** The page's one character, added with `text` (the one before it removed), on screen as its frames come. */
   async start(text, { seed, seconds }) {
     await this.stop();
-    this.ident = await this.client.add(text, { seed, seconds });
+    setBusy('streaming');
+    status(`adding "${text}" (seed ${seed}) on the server...`);
+    // on screen before add's reply: the character's first frames may come in the same turn as it
+    const stream = showStream(text, seed, null);
+    try {
+      this.ident = await this.client.add(text, { seed, seconds });
+    } catch (e) {   // refused (a limit, a blank prompt) or disconnected: no stream
+      if (page.stream === stream) streamOver();
+      throw e;
+    }
     this.text = text;
-    return this.ident;
+    if (page.stream !== stream) return;   // stopped meanwhile
+    stream.id = this.ident;
+    status(`streaming "${text}" (seed ${seed}) from the server: type a new prompt and press Enter or "Set prompt"`);
   }
 
   async setPrompt(text) {
