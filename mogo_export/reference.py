@@ -36,6 +36,7 @@ class TorchBackend:
         self.dims = model_dims(vq, transformer, fps, max_tokens)
         c = transformer.cfg
         self.control = ControlSpec(c.control_horizon, c.control_dim) if c.control_dim else None
+        self.decoder_state = None      # streams decode windows of tokens (decoding.FrameMaker)
 
     @torch.no_grad()
     def encode_text(self, texts: list[str]) -> np.ndarray:

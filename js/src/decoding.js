@@ -1,11 +1,13 @@
 // The generation recipe, step for step as runtime/mogo_runtime/decoding.py. Per step the backend's transformer step
 // emits the logits of every level for the next time step; the step policy (policy.js) picks the tokens; level 0
 // choosing END stops a clip (`generateTokens`) or restarts an endless stream's prompt (endless.js). Frames come from
-// the causal decoder, once at the end (`decodeTokens`) or window by window as tokens arrive (`FrameMaker`), with
-// identical results because a frame depends only on the last receptive_field + 1 tokens.
+// the causal decoder, once at the end (`decodeTokens`) or as tokens arrive (`FrameMaker`): from the decoder's state
+// (a bundle's decoder_step graph) or by decoding a window of the last receptive_field + 1 tokens, on which a frame
+// alone depends; the same frames within float32 rounding.
 //
 // Tokens are Int32Array rows of L levels; logits (rows, steps, L, K + 1) float32 as onnxruntime returns them.
 
+import { concat } from './bundle/io.js';
 import { EndlessLoop } from './endless.js';
 import { recoverFromRic } from './kinematics/features.js';
 import { FootLock, FrameJoints } from './kinematics/frames.js';
@@ -69,15 +71,18 @@ export async function decodeTokens(backend, tokenSeqs) {
 }
 
 /**
- * One stream's tokens -> its frames as they come: the causal decoder's window of recent tokens, then joints
- * integrated frame by frame (FrameJoints). The first token is decoded at once (time to first frame); later tokens
- * `chunk` at a time, each decode reading receptive_field + chunk tokens, so frames come in bursts of
- * chunk * downsample (decoding.py says why 4). The caller runs the decoder: `window(n)` in, `framesFrom` out.
+ * One stream's tokens -> its frames as they come: the causal decoder, then joints integrated frame by frame
+ * (FrameJoints). The first token is decoded at once (time to first frame); later tokens `chunk` at a time, so frames
+ * come in bursts of chunk * downsample (decoding.py says why 4). With `decoderState` (the shapes of a decoder_step
+ * graph's state) each decode feeds the new tokens alone and carries the decoder's state; without it, each decode
+ * reads a window of receptive_field + chunk tokens. The caller runs the decoder (`decodeDue`), then `framesFrom`.
  */
 export class FrameMaker {
-  constructor(dims, skeleton, chunk = 1) {
+  constructor(dims, skeleton, chunk = 1, decoderState = null) {
     this.dims = dims;
     this.chunk = checkChunk(chunk);
+    // the decoder_step graph's state, zeros at a motion's start (the left padding of a whole-motion decode)
+    this.state = decoderState && decoderState.map(([reach, channels]) => new Float32Array(reach * channels));
     this.tokens = new Int32Array((dims.receptiveField + chunk) * dims.numLevels);
     this.count = 0;     // tokens pushed
     this.pending = 0;   // tokens pushed whose frames were not made yet
@@ -97,13 +102,13 @@ export class FrameMaker {
   /** Tokens to decode for the frames now ready, 0 while a chunk fills up; `final`: every pending token's frames. */
   due(final = false) {
     if (!this.pending || !(final || this.count === 1 || this.pending >= this.chunk)) return 0;
-    return Math.min(this.count, this.dims.receptiveField + this.pending);
+    return this.state ? this.pending : Math.min(this.count, this.dims.receptiveField + this.pending);
   }
 
   /** The last n tokens (n, L), oldest first: the decoder's input for the frames due. */
   window(n) { return this.tokens.subarray(this.tokens.length - n * this.dims.numLevels); }
 
-  /** The decoder's features for `window(n)` -> the new frames {index, features (n, D), joints (n, J, 3)}. */
+  /** The decoder's features for the n tokens due (`decodeDue`) -> the new frames {index, features (n, D), joints (n, J, 3)}. */
   framesFrom(features) {
     const fresh = features.subarray(features.length - this.pending * this.dims.downsample * this.dims.featureDim);
     const frames = { index: this.frames, features: fresh, joints: this.joints.push(fresh) };
@@ -111,6 +116,21 @@ export class FrameMaker {
     this.pending = 0;
     return frames;
   }
+}
+
+/**
+ * The features of the `n` tokens due (FrameMaker.due) of each of `makers`, in one decoder call: (B, n * ds, D) flat.
+ * From each maker's decoder state, which moves on (decoder_step), else from its window (decoding.py decode_due).
+ */
+export async function decodeDue(decoder, makers, n) {
+  const tokens = concat(makers.map((m) => m.window(n)));
+  if (!makers[0].state) return decoder.decode(tokens, makers.length);
+  const state = makers[0].state.map((_, i) => concat(makers.map((m) => m.state[i])));
+  const out = await decoder.decodeStep(tokens, makers.length, state);
+  makers.forEach((m, b) => {
+    m.state = out.state.map((s, i) => s.slice(b * m.state[i].length, (b + 1) * m.state[i].length));
+  });
+  return out.features;
 }
 
 /**
@@ -206,7 +226,8 @@ export class GenerationTask {
    * while it has a target.
    */
   stream(textEmb, seed, chunk = 4, loop = null, beforeStep = null, steering = null) {
-    const maker = new FrameMaker(this.backend.dims, this.skeleton, chunk);   // checks chunk now, not at the first frame
+    // checks chunk now, not at the first frame
+    const maker = new FrameMaker(this.backend.dims, this.skeleton, chunk, this.backend.decoderState ?? null);
     return this.#stream(this.steps(textEmb, [seed], loop, beforeStep), maker, steering);
   }
 
@@ -222,7 +243,7 @@ export class GenerationTask {
   }
 
   async #frames(maker, n, steering) {
-    const frames = maker.framesFrom(await this.backend.decode(maker.window(n), 1));
+    const frames = maker.framesFrom(await decodeDue(this.backend, [maker], n));
     if (steering) steering.update(maker.frames, maker.joints);   // maker.frames: the next frame's number
     return frames;
   }

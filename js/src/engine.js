@@ -8,8 +8,8 @@
 // (docs/bundle.md, the generation loop, step 3). Their cache is then one list of tensors per row.
 
 import { concat, createSession } from './bundle/io.js';
-import { fixedCache, rowByRow } from './bundle/manifest.js';
-import { BundleError, GRAPHS } from './bundle/sections.js';
+import { decoderState, fixedCache, graphNames, rowByRow } from './bundle/manifest.js';
+import { BundleError, DECODING_GRAPHS } from './bundle/sections.js';
 import { oneLine, shown } from './checks.js';
 import { Tokenizer } from './tokenizer.js';
 
@@ -18,24 +18,26 @@ export class NonFiniteOutput extends BundleError {}
 
 const MAX_THREADS = 64;
 const TEXT_BATCH = 64;   // prompts per text-encoder call, as TextEncoderSession.encode
-const DECODING = ['lookup', 'decoder'];   // the graphs a decode-only client opens
 
 /**
  * The decoding half of a bundle variant: its codebook lookup and motion decoder, tokens in, features out
  * (engine.py MotionDecoder). All a client that only shows motion generated elsewhere needs (wire/client.js): it
- * reads no step graph, no text encoder and no tokenizer.
+ * reads no step graph, no text encoder and no tokenizer. A bundle with a decoder_step graph also decodes a stream's
+ * new tokens from its decoder state (`decodeStep`; `decoderState` its shapes).
  */
 export class MotionDecoder {
   /** The lookup and decoder sessions of `variant` of a Bundle on `ort` (onnxruntime-node or -web), each checked. */
   static async open(bundle, variant, { ort, threads = 1, providers }) {
     checkOpen(bundle, variant, threads);
-    const sessions = await openSessions(bundle, variant, DECODING, { ort, threads, providers });
+    const graphs = DECODING_GRAPHS.filter((g) => graphNames(bundle.manifest).includes(g));
+    const sessions = await openSessions(bundle, variant, graphs, { ort, threads, providers });
     return new MotionDecoder(ort, bundle.manifest, variant, sessions, rowByRow(bundle.manifest, variant));
   }
 
   /** `rowByRow`: the graphs that run one row per call (those quantized per tensor). */
   constructor(ort, manifest, variant, sessions, rowByRow) {
     Object.assign(this, { ort, manifest, dims: manifest.model, variant, sessions, rowByRow });
+    this.decoderState = decoderState(manifest);   // null: streams decode windows of tokens
   }
 
   /** Codebook lookup + causal decoder: tokens (B, T, L), valid codes -> de-normalised features (B, T * ds, D). */
@@ -61,6 +63,35 @@ export class MotionDecoder {
     return finite(this, 'decoder', features.data);
   }
 
+  /**
+   * Streams' next tokens (B, T, L) from their decoder state (per state (B, reach, channels) float32, zeros at a
+   * motion's start) -> {features (B, T * ds, D), state: the state after them} (engine.py decode_step).
+   */
+  async decodeStep(tokens, batch, state) {
+    if (this.rowByRow.has('decoder_step') || this.rowByRow.has('lookup')) {
+      const rows = [];
+      for (let r = 0; r < batch; r++) rows.push(await this.decodeStep(rowOf(tokens, batch, r), 1, state.map((s) => rowOf(s, batch, r))));
+      return { features: concat(rows.map((o) => o.features)), state: state.map((_, i) => concat(rows.map((o) => o.state[i]))) };
+    }
+    const L = this.dims.numLevels, T = tokens.length / (batch * L);
+    const ids = new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [batch, T, L]);
+    const { latent } = await runGraph(this, 'lookup', { tokens: ids });
+    finite(this, 'lookup', latent.data);
+    const feed = { latent };
+    this.decoderState.forEach(([reach, channels], i) => {
+      feed[`decoder_state.${i}`] = new this.ort.Tensor('float32', state[i], [batch, reach, channels]);
+    });
+    const out = await runGraph(this, 'decoder_step', feed);
+    const { features } = out, want = [batch, T * this.dims.downsample, this.dims.featureDim];
+    if (!sameDims(features.dims, want)) {
+      throw new BundleError(`${graphFile(this, 'decoder_step')}: decoded ${T} tokens to `
+        + `[${features.dims.slice(1)}] frames x features; manifest model.downsample ${this.dims.downsample} and `
+        + `model.feature_dim ${this.dims.featureDim} promise [${want.slice(1)}]`);
+    }
+    return { features: finite(this, 'decoder_step', features.data),
+      state: this.decoderState.map((_, i) => out[`next_decoder_state.${i}`].data) };
+  }
+
   /** Free the sessions' native memory (the backend cannot be used afterwards). */
   async release() {
     for (const session of Object.values(this.sessions)) await session.release?.();
@@ -78,7 +109,7 @@ export class OrtBackend extends MotionDecoder {
       throw new BundleError(`${tokenizer.source}: cuts at ${tokenizer.maxLength} tokens; manifest text_encoder.max_length is `
         + `${manifest.textEncoder.maxLength}`);
     }
-    const sessions = await openSessions(bundle, variant, GRAPHS, { ort, threads, providers });
+    const sessions = await openSessions(bundle, variant, graphNames(manifest), { ort, threads, providers });
     return new OrtBackend(ort, manifest, variant, tokenizer, sessions, rowByRow(manifest, variant));
   }
 

@@ -21,7 +21,7 @@ export { PCG64 } from './pcg64.js';
 export { StepPolicy, expandSeeds, makeRngs, sample } from './policy.js';
 export { EndlessLoop, StreamContext } from './endless.js';
 export { MAX_ACTIONS, MOST_SECONDS, planActions } from './plan.js';
-export { FrameMaker, GenerationTask, checkChunk, collectTokens, decodeTokens, generateTokens } from './decoding.js';
+export { FrameMaker, GenerationTask, checkChunk, collectTokens, decodeDue, decodeTokens, generateTokens } from './decoding.js';
 export { SKELETONS } from './kinematics/skeleton.js';
 export { recoverFromRic } from './kinematics/features.js';
 export { FootLock, FrameJoints, RootIntegrator } from './kinematics/frames.js';

@@ -9,6 +9,7 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { MotionGenerator } from '../src/generator.js';
 import { fileLoader, toHex } from '../src/bundle/io.js';
+import { DECODING_GRAPHS } from '../src/bundle/sections.js';
 import { MotionDecoder, OrtBackend } from '../src/engine.js';
 import { MotionClient } from '../src/wire/client.js';
 import {
@@ -33,13 +34,14 @@ async function run(c, messages) {
   return { received, joints };
 }
 
-test("a decode-only client makes the Python client's joints, with the lookup and the decoder alone", async () => {
+test("a decode-only client makes the Python client's joints, with the decoding graphs alone", async () => {
   let worst = 0, frames = 0;
   for (const s of ref.streams) {
     for (const want of s.runs) {
       const c = await client(s, want.chunk);
       assert.ok(c.decoder instanceof MotionDecoder && !(c.decoder instanceof OrtBackend));
-      assert.deepEqual(Object.keys(c.decoder.sessions).sort(), ['decoder', 'lookup']);
+      const decoding = DECODING_GRAPHS.filter((g) => Object.hasOwn(c.bundle.manifest.variants[c.decoder.variant], g));
+      assert.deepEqual(Object.keys(c.decoder.sessions).sort(), decoding.sort());
       assert.equal(toHex(c.id), s.decoder_id, `${s.name}: decoder id`);
       const got = await run(c, messagesOf(s));
       assert.deepEqual(got.received, want.received, `${s.name}, chunk ${want.chunk}: frames per message`);
@@ -98,9 +100,10 @@ test('records round-trip; what the wire cannot carry is refused', () => {
     /9 bytes buffered without a whole record \(at most 8\)/);
 });
 
-test('a decode-only client reads only the manifest, the lookup and the decoder', async () => {
+test('a decode-only client reads only the manifest and the decoding graphs', async () => {
   const s = streams.crowd, manifest = (await MotionClient.load(s.bundle, { variant: s.variant })).bundle.manifest;
-  const keep = ['manifest.json', ...['lookup', 'decoder'].map((g) => manifest.variants[s.variant][g].file)];
+  assert.ok(Object.hasOwn(manifest.variants[s.variant], 'decoder_step'), 'the lookup, the decoder and its step graph');
+  const keep = ['manifest.json', ...DECODING_GRAPHS.map((g) => manifest.variants[s.variant][g].file)];
   const dir = mkdtempSync(join(tmpdir(), 'mogo-wire-'));
   try {
     for (const f of keep) copyFileSync(join(s.bundle, f), join(dir, f));

@@ -4,7 +4,7 @@ manifest, atomically (docs/bundle.md).
     mogo-export export checkpoints/base --out bundles/base [--opset 20] [--int8 step,text_encoder]
                                         [--no-portable] [--ort int8,portable]
 
-Opsets: the dynamic step graphs at `--opset`; the text encoder, lookup and decoder at min(opset, 17), so that one
+Opsets: the dynamic step graphs at `--opset`; the text encoder, lookup and decoders at min(opset, 17), so that one
 file serves every variant, the portable one included (at 17 instead of 20 the text encoder differs by 1e-7 and runs
 as fast on base); the portable step at the same opset as they.
 
@@ -42,7 +42,7 @@ from .. import __version__
 from ..checkpoint import load_trained, model_dims
 from ..models.text_encoder import get_text_encoder
 from .caption_index import build_caption_index, tca_manifest_section
-from .graphs import DEFAULT_OPSET, export_decoder, export_lookup, export_step
+from .graphs import DEFAULT_OPSET, export_decoder, export_decoder_step, export_lookup, export_step
 from .opset import portable_problems
 from .ort_format import to_ort, write_required_operators
 from .portable import export_portable_step
@@ -178,12 +178,14 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
         log("exporting text_encoder ...")
         te = export_text_encoder(encoder, tmp, shared_opset)
         graphs["text_encoder"] = {"inputs": te["inputs"], "outputs": te["outputs"]}
-        log("exporting step, lookup, decoder ...")
+        log("exporting step, lookup, decoder, decoder_step ...")
         graphs["step"] = export_step(tr, tmp / "step.onnx", opset, {**graph_meta, "mogo.graph": "step"})
         graphs["lookup"] = export_lookup(vq, tmp / "lookup.onnx", shared_opset,
                                          {**graph_meta, "mogo.graph": "lookup"})
         graphs["decoder"] = export_decoder(vq, meta["mean"], meta["std"], tmp / "decoder.onnx", shared_opset,
                                            {**graph_meta, "mogo.graph": "decoder"})
+        graphs["decoder_step"] = export_decoder_step(vq, meta["mean"], meta["std"], tmp / "decoder_step.onnx",
+                                                     shared_opset, {**graph_meta, "mogo.graph": "decoder_step"})
         tca = None
         data_root = Path(data) if data is not None else Path(meta.get("dataset", ""))
         if data is not None or (data_root.name and (data_root / "train.txt").exists()):

@@ -1,4 +1,5 @@
-"""One exporter per ONNX graph of the bundle: step (transformer + KV cache), lookup (tokens -> latent), decoder.
+"""One exporter per ONNX graph of the bundle: step (transformer + KV cache), lookup (tokens -> latent), decoder,
+decoder_step (the decoder a few tokens at a time, its causal state explicit).
 
 Each function's docstring lists the graph's inputs and outputs; docs/bundle.md is the full contract. All use
 `torch.onnx.export(..., dynamo=True)` and then check the saved file: `onnx.checker` with full_check (a colliding
@@ -18,7 +19,7 @@ import torch.nn as nn
 from torch.export import Dim
 
 from ..models.transformer import RQHCTransformer
-from ..models.vq import MoSAVQ
+from ..models.vq import CausalConv1d, MoSAVQ, ResBlock, Upsample
 from .opset import TORCH_MIN_OPSET, default_opset, to_opset
 
 DEFAULT_OPSET = 20
@@ -64,6 +65,64 @@ class DecoderGraph(nn.Module):
 
     def forward(self, latent):
         return self.decoder(latent) * self.std + self.mean
+
+
+class DecoderStepGraph(nn.Module):
+    """The causal decoder over the tokens that are new, its state explicit: what each causal conv must still see
+    of its input (the last `reach` steps), time-major [batch, reach, channels], zeros at a motion's start (the
+    left padding of the whole-clip decode). Frames equal the whole-clip decoder's within float32 rounding.
+
+    Each conv runs as one MatMul over every row and new step (taps side by side), not as a Conv: onnxruntime's Conv
+    loops over the batch, so a crowd's 256 one-token rows cost as much as 256 calls (on base, 156 us a row as a
+    Conv, 33 us as a MatMul; the stateless decoder over a 17-token window: 780 us, benchmarks/NOTES.md).
+    """
+
+    def __init__(self, vq: MoSAVQ, mean, std):
+        super().__init__()
+        self.layers = list(vq.decoder.net)
+        self.convs = [m.conv1 if isinstance(m, ResBlock) else m for m in self.layers
+                      if isinstance(m, (ResBlock, CausalConv1d))]
+        for i, m in enumerate(self.convs):    # [k * in, out], tap-major: the rows of the taps side by side
+            k, c_in, c_out = m.kernel_size[0], m.in_channels, m.out_channels
+            self.register_buffer(f"w{i}", m.weight.detach().permute(2, 1, 0).reshape(k * c_in, c_out).clone())
+            self.register_buffer(f"b{i}", m.bias.detach().clone())
+        self.pointwise = [m.conv2 for m in self.layers if isinstance(m, ResBlock)]
+        for i, m in enumerate(self.pointwise):
+            self.register_buffer(f"p{i}", m.weight.detach()[:, :, 0].T.clone())
+            self.register_buffer(f"pb{i}", m.bias.detach().clone())
+        self.register_buffer("mean", torch.as_tensor(mean, dtype=torch.float32))
+        self.register_buffer("std", torch.as_tensor(std, dtype=torch.float32))
+
+    @property
+    def state_shapes(self) -> list[tuple[int, int]]:
+        """[reach, channels] of each state, in input order."""
+        return [(m.reach, m.in_channels) for m in self.convs]
+
+    def forward(self, latent, *state):   # latent [batch, tokens, code_dim]
+        x, nxt, convs, points = latent, [], iter(range(len(self.convs))), iter(range(len(self.pointwise)))
+
+        def conv(x):
+            i = next(convs)
+            m = self.convs[i]
+            seen = torch.cat([state[i], x], 1)                                   # [batch, reach + t, in]
+            nxt.append(seen[:, seen.shape[1] - m.reach:])
+            d, t = m.dilation[0], x.shape[1]
+            taps = torch.cat([seen[:, j * d: j * d + t] for j in range(m.kernel_size[0])], 2)   # [batch, t, k * in]
+            return taps @ getattr(self, f"w{i}") + getattr(self, f"b{i}")
+
+        for layer in self.layers:
+            if isinstance(layer, CausalConv1d):
+                x = conv(x)
+            elif isinstance(layer, nn.ReLU):
+                x = torch.relu(x)
+            elif isinstance(layer, ResBlock):
+                i = next(points)
+                x = x + torch.relu(conv(torch.relu(x))) @ getattr(self, f"p{i}") + getattr(self, f"pb{i}")
+            elif isinstance(layer, Upsample):
+                x = x.unsqueeze(2).expand(-1, -1, layer.factor, -1).flatten(1, 2)
+            else:
+                raise TypeError(f"the decoder step has no rule for {type(layer).__name__}")
+        return (x * self.std + self.mean, *nxt)
 
 
 def io_spec(model: onnx.ModelProto) -> dict:
@@ -172,3 +231,24 @@ def export_decoder(vq: MoSAVQ, mean, std, path: Path, opset: int = DEFAULT_OPSET
     dyn = ({0: Dim("batch", min=1, max=1024), 1: Dim("tokens", min=1, max=8192)},)
     export_module(DecoderGraph(vq, mean, std), (latent,), path, ["latent"], ["features"], dyn, opset, metadata or {})
     return check_graph(path, {"latent": ["batch", "tokens", c.code_dim], "features": ["batch", "any", c.input_dim]})
+
+
+def export_decoder_step(vq: MoSAVQ, mean, std, path: Path, opset: int = DEFAULT_OPSET,
+                        metadata: dict | None = None) -> dict:
+    """decoder_step.onnx. Inputs: latent float32 [batch, tokens, latent_dim]; decoder_state.{i} float32 [batch,
+    reach_i, channels_i]. Outputs: features float32 [batch, frames, feature_dim], de-normalised, frames = tokens *
+    downsample; next_decoder_state.{i}, the same shapes as the inputs."""
+    c = vq.cfg
+    module = DecoderStepGraph(vq, mean, std)
+    g = torch.Generator().manual_seed(0)
+    latent = torch.randn(2, 3, c.code_dim, generator=g)
+    state = [torch.randn(2, r, ch, generator=g) for r, ch in module.state_shapes]
+    names_in = ["latent"] + [f"decoder_state.{i}" for i in range(len(state))]
+    names_out = ["features"] + [f"next_decoder_state.{i}" for i in range(len(state))]
+    batch = Dim("batch", min=1, max=1024)
+    dyn = ({0: batch, 1: Dim("tokens", min=1, max=8192)}, tuple({0: batch} for _ in state))
+    export_module(module, (latent, *state), path, names_in, names_out, dyn, opset, metadata or {})
+    expected = {"latent": ["batch", "tokens", c.code_dim], "features": ["batch", "any", c.input_dim]}
+    for i, (r, ch) in enumerate(module.state_shapes):
+        expected[f"decoder_state.{i}"] = expected[f"next_decoder_state.{i}"] = ["batch", r, ch]
+    return check_graph(path, expected)

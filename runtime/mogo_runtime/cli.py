@@ -30,7 +30,7 @@ from pathlib import Path
 from .bundle.folder import Bundle, read_manifest
 from .bundle.manifest import SCHEMA_VERSION
 from .bundle.sampling import SamplingConfig
-from .bundle.sections import GRAPHS, BundleError
+from .bundle.sections import BundleError
 from .control.commands import Request, parse_request
 from .outputs.extras import MissingExtra
 from .outputs.motion import RIG_FORMATS, SAVE_FORMATS, check_output_path
@@ -420,8 +420,8 @@ def cmd_info(args) -> int:
     print(f"sampling   {_describe(m.sampling_defaults.to_dict())}")
     print("variants")
     for v in bundle.variants:
-        files = [m.graph_file(g, v).file for g in GRAPHS]
-        print(f"  {v:<12} {_mb(bundle.total_bytes(v)):>9}  " + ", ".join(f"{g}={f}" for g, f in zip(GRAPHS, files)))
+        files = [m.graph_file(g, v).file for g in m.graph_names]
+        print(f"  {v:<12} {_mb(bundle.total_bytes(v)):>9}  " + ", ".join(f"{g}={f}" for g, f in zip(m.graph_names, files)))
     if m.portable:
         print(f"portable   step graph over a fixed cache of {m.portable.capacity} steps, opset {m.portable.opset}")
     if m.ort:

@@ -33,7 +33,7 @@ import numpy as np
 from .bundle.sampling import SamplingConfig, sampling_or
 from .checks import as_int
 from .control.steering import Steerable, Steering
-from .decoding import FrameMaker, Frames, check_chunk
+from .decoding import FrameMaker, Frames, check_chunk, decode_due
 from .endless import StreamContext
 from .engine import FixedCacheBackend
 from .outputs.motion import Motion
@@ -80,7 +80,7 @@ class Character(Steerable):
         control = crowd.backend.control
         self.context = StreamContext(crowd.policy, cond.emb, seed, crowd.gen.bundle.manifest.streaming,
                                      control.dim if control else 0, cond.limits)
-        self.frames = FrameMaker(crowd.gen.dims, crowd.gen.skeleton, crowd.chunk)
+        self.frames = FrameMaker(crowd.gen.dims, crowd.gen.skeleton, crowd.chunk, crowd.backend.decoder_state)
         self.steering = Steering(control, crowd.gen.dims, self.context) if control else None
         self.switches: deque[tuple[int, str]] = deque(maxlen=SWITCH_HISTORY)
         self.recorded: tuple[list, list, list] | None = ([], [], []) if record else None   # tokens, features, joints
@@ -143,17 +143,18 @@ class Crowd:
         self.gen, self.backend, self.chunk = gen, gen.backend, check_chunk(chunk)
         self.policy = StepPolicy(sampling_or(gen.sampling_defaults, sampling), gen.dims)
         self.characters: list[Character] = []      # characters[i].slot == i owns rows [i * rows, (i + 1) * rows)
-        # the cache of every row, allocated for more characters than there are (doubling as they come), so adding
-        # one copies nothing; the rows in use are the first len(characters) * rows
-        self._cache = self.backend.empty_past(0).arrays
         self._spare = self.backend.empty_past(0).arrays
         self._next_id = 0
         self._lock = threading.Lock()
-        # a character's rows, in the crowd's cache (which grows by doubling) and in the scratch rows of a rebuild
-        self.character_bytes = 3 * self.policy.rows * sum(a[:1].nbytes for a in self.backend.empty_past(1).arrays)
+        # a character's rows, in the crowd's cache and in the scratch rows of a rebuild
+        self.character_bytes = 2 * self.policy.rows * sum(a[:1].nbytes for a in self.backend.empty_past(1).arrays)
         self.max_characters = (as_int("max_characters", max_characters, "an int >= 1 or None", 1)
                                if max_characters is not None else
                                max(1, int(MEMORY_SHARE * available_memory() // self.character_bytes)))
+        # the cache of every row, for max_characters at once: zeros the system maps only as rows are first written,
+        # so memory grows with the characters and adding one never copies the others' (growing by doubling
+        # copied them: a 227-577 ms tick at the 128th character on base, and 192 characters late by 0.2 s)
+        self._cache = self.backend.empty_past(self.max_characters * self.policy.rows).arrays
 
     def __len__(self) -> int:
         return len(self.characters)
@@ -178,12 +179,7 @@ class Crowd:
                                  f"max_characters=N) sets another bound")
             character = Character(self, self._next_id, text, cond, seed, limit, bool(record))
             self._next_id += 1
-            rows, most = (len(self.characters) + 1) * self.policy.rows, self.max_characters * self.policy.rows
-            if rows > len(self._cache[0]):      # its rows may hold a departed character's cache: finite, masked
-                grown = self.backend.empty_past(max(rows, min(2 * len(self._cache[0]), most))).arrays
-                for new, old in zip(grown, self._cache):
-                    new[:len(old)] = old
-                self._cache = grown
+            # its rows may hold a departed character's cache: finite, and masked out of its attention
             character.slot = len(self.characters)
             self.characters.append(character)
         return character
@@ -297,7 +293,7 @@ class Crowd:
         return [a[:rows] for a in self._spare]
 
     def _decode(self) -> dict[Character, Frames]:
-        """Every character's due decoder window, one decoder call per window length."""
+        """Every character's due tokens, one decoder call per number of tokens (or window length)."""
         groups: dict[int, list[Character]] = {}
         for c in self.characters:
             if c.steering is not None and c.steering.target is not None:
@@ -310,7 +306,7 @@ class Crowd:
                 c.recorded[0].append(c.context.last)
         out = {}
         for n, chars in groups.items():
-            features = self.backend.decode(np.stack([c.frames.window(n) for c in chars]))
+            features = decode_due(self.backend, [c.frames for c in chars], n)
             for c, f in zip(chars, features):
                 out[c] = c.frames.frames_from(f)
                 if c.steering is not None:

@@ -4,9 +4,9 @@ the parity verifier, evaluation).
 A backend computes; the loop decides. Per step the backend's transformer step emits the logits of every
 quantizer level for the next time step (all L level streams in one pass); the step policy (policy.py) picks the
 tokens; the level-0 stream choosing END stops a clip (`generate_tokens`), or restarts an endless stream's prompt
-(endless.py). Frames come from the causal motion decoder, either once at the end (`decode_tokens`) or window by
-window as tokens arrive (`FrameMaker`), with identical results because a frame depends only on the last
-`receptive_field + 1` tokens.
+(endless.py). Frames come from the causal motion decoder, either once at the end (`decode_tokens`) or as tokens
+arrive (`FrameMaker`): from the decoder's state (a bundle's decoder_step graph) or, without one, by decoding a window
+of the last `receptive_field + 1` tokens, on which a frame alone depends; the same frames within float32 rounding.
 
 `GenerationTask` is the whole recipe (seeds -> token loop -> tokens -> features -> joints), at once or as a stream.
 """
@@ -46,6 +46,10 @@ class Backend(Protocol):
     def step(self, text_emb: np.ndarray, tokens: np.ndarray, past): ...
 
     def decode(self, tokens: np.ndarray) -> np.ndarray: ...
+
+    # with a decoder_step graph: its state's [reach, channels] shapes, and decode_step (engine.MotionDecoder); the
+    # torch reference has None and decodes windows
+    decoder_state: tuple[tuple[int, int], ...] | None
 
 
 def generate_tokens(backend: Backend, text_emb: np.ndarray, sampling: SamplingConfig,
@@ -112,19 +116,23 @@ class Frames:
 
 
 class FrameMaker:
-    """One stream's tokens -> its frames as they come: the causal decoder's window of recent tokens, then joints
-    integrated frame by frame (kinematics.frames.FrameJoints).
+    """One stream's tokens -> its frames as they come: the causal decoder, then joints integrated frame by frame
+    (kinematics.frames.FrameJoints).
 
-    The first token is decoded at once (time to first frame); later tokens `chunk` at a time, each decode reading
-    receptive_field + chunk tokens. With chunk=1 every token re-decodes its whole receptive field (18 tokens for 4
-    new frames on `base`); chunk=4 measured 343 -> 217 ms for a 196-frame stream (benchmarks/NOTES.md, idea 3),
-    its frames coming in bursts of chunk * downsample, well ahead of real time. Holds a fixed window of recent
-    tokens: nothing the size of the motion. The caller runs the decoder (`window` in, `frames_from` out), so a crowd
-    decodes many streams' windows in one call.
+    The first token is decoded at once (time to first frame); later tokens `chunk` at a time. With `decoder_state`
+    (the shapes of a decoder_step graph's state) each decode feeds the new tokens alone and carries the decoder's
+    state: a token's frames cost the same at any chunk, and are the same bits at any chunk. Without it, each decode
+    reads a window of receptive_field + chunk tokens: with chunk=1 every token re-decodes its whole receptive field
+    (18 tokens for 4 new frames on `base`), chunk=4 measured 343 -> 217 ms for a 196-frame stream
+    (benchmarks/NOTES.md, idea 3). Holds a fixed window of recent tokens: nothing the size of the motion. The caller
+    runs the decoder (`decode_due`), so a crowd decodes many streams in one call.
     """
 
-    def __init__(self, dims: ModelDims, skeleton: Skeleton, chunk: int = 1):
+    def __init__(self, dims: ModelDims, skeleton: Skeleton, chunk: int = 1,
+                 decoder_state: tuple[tuple[int, int], ...] | None = None):
         self.dims, self.chunk = dims, check_chunk(chunk)
+        # the decoder_step graph's state, zeros at a motion's start (the left padding of a whole-motion decode)
+        self.state = None if decoder_state is None else [np.zeros(s, np.float32) for s in decoder_state]
         self.tokens = np.zeros((dims.receptive_field + self.chunk, dims.num_levels), np.int64)
         self.count = 0      # tokens pushed
         self.pending = 0    # tokens pushed whose frames were not made yet
@@ -144,20 +152,32 @@ class FrameMaker:
         pending token's frames are due."""
         if not self.pending or not (final or self.count == 1 or self.pending >= self.chunk):
             return 0
-        return min(self.count, self.dims.receptive_field + self.pending)
+        return self.pending if self.state is not None else min(self.count, self.dims.receptive_field + self.pending)
 
     def window(self, n: int) -> np.ndarray:
         """The last n tokens (n, L), oldest first: the decoder's input for the frames due."""
         return self.tokens[len(self.tokens) - n:]
 
     def frames_from(self, features: np.ndarray, clock: StageClock = NO_CLOCK) -> Frames:
-        """The decoder's features for `window(n)` -> the new frames (the pending tokens')."""
+        """The decoder's features for the n tokens due (`decode_due`) -> the new frames (the pending tokens')."""
         features = features[len(features) - self.pending * self.dims.downsample:]
         with clock("joints"):
             frames = Frames(self.frames, features, self.joints.push(features))
         self.frames += len(features)
         self.pending = 0
         return frames
+
+
+def decode_due(decoder: Backend, makers: list[FrameMaker], n: int) -> np.ndarray:
+    """The features of the `n` tokens due (FrameMaker.due) of each of `makers`, in one decoder call: (B, n *
+    downsample, D). From each maker's decoder state, which moves on (decoder_step), else from its window."""
+    tokens = np.stack([m.window(n) for m in makers])
+    if makers[0].state is None:
+        return decoder.decode(tokens)
+    features, state = decoder.decode_step(tokens, [np.stack(s) for s in zip(*(m.state for m in makers))])
+    for b, m in enumerate(makers):
+        m.state = [s[b] for s in state]
+    return features
 
 
 @dataclass
@@ -269,7 +289,8 @@ class GenerationTask:
         """One prompt's frames as its tokens are sampled, a chunk at a time. With `loop` (an EndlessLoop of this
         prompt) the stream follows that loop's prompt changes; with `steering` (of that loop's stream) it goes where
         the steering's target leads, and makes its frames every token while it has a target."""
-        maker = FrameMaker(self.backend.dims, self.skeleton, chunk)     # checks chunk now, not at the first frame
+        # checks chunk now, not at the first frame
+        maker = FrameMaker(self.backend.dims, self.skeleton, chunk, self.backend.decoder_state)
         return self._stream(self.steps(text_emb, [seed], loop), maker, steering)
 
     def _stream(self, steps, maker: FrameMaker, steering: Steering | None = None) -> Iterator[Frames]:
@@ -287,7 +308,7 @@ class GenerationTask:
 
     def _frames(self, maker: FrameMaker, n: int, steering: Steering | None = None) -> Frames:
         with self.clock("decode"):
-            features = self.backend.decode(maker.window(n)[None])[0]
+            features = decode_due(self.backend, [maker], n)[0]
         frames = maker.frames_from(features, self.clock)
         if steering is not None:
             steering.update(frames.index + len(frames.joints), maker.joints)

@@ -12,14 +12,20 @@ batched.
 """
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 
 from .bundle.folder import Bundle
-from .bundle.sections import BundleError, ControlSpec, ModelDims
+from .bundle.manifest import DECODER_STATE
+from .bundle.sections import DECODING_GRAPHS, BundleError, ControlSpec, ModelDims
 from .checks import shown
 from .text import TextEncoderSession, check_threads, session_options
+
+
+TEXT_CACHE = 1024     # prompts whose embedding a backend keeps (1.5 MB on base)
 
 
 class NonFiniteOutput(BundleError):
@@ -34,7 +40,8 @@ def open_backend(bundle: Bundle, variant: str = "fp32", threads: int = 1) -> "Or
 class MotionDecoder:
     """The decoding half of a bundle variant: its codebook lookup and motion decoder on onnxruntime, tokens in,
     features out. All a client needs that only shows motion generated elsewhere (wire/client.py): no step graph, no
-    text encoder (on `base`'s compact variant, 0.9 MB of graphs against 32 MB)."""
+    text encoder (on `base`'s compact variant, 0.9 MB of graphs against 32 MB). A bundle with a decoder_step graph
+    also decodes a stream's new tokens from its decoder state (`decode_step`; `decoder_state` its shapes)."""
 
     def __init__(self, bundle: Bundle, variant: str = "fp32", threads: int = 1):
         if variant not in bundle.manifest.variants:
@@ -43,10 +50,13 @@ class MotionDecoder:
         self.dims: ModelDims = bundle.dims
         self.one_row = bundle.manifest.row_by_row(variant)       # graphs that run one row per call
         opts = session_options(self.threads)
-        self.lookup_session, self.decoder_session = sessions = [bundle.session(graph, variant, opts)
-                                                                for graph in ("lookup", "decoder")]
-        for graph, sess in zip(("lookup", "decoder"), sessions):
+        self.decoder_state = bundle.manifest.decoder_state      # None: streams decode windows of tokens
+        graphs = DECODING_GRAPHS[:3 if self.decoder_state else 2]
+        sessions = [bundle.session(graph, variant, opts) for graph in graphs]
+        for graph, sess in zip(graphs, sessions):
             bundle.check_session(graph, sess, variant)
+        self.lookup_session, self.decoder_session = sessions[:2]
+        self.decoder_step_session = sessions[2] if self.decoder_state else None
 
     def decode(self, tokens: np.ndarray) -> np.ndarray:
         """Codebook lookup + causal decoder: (B, T, L) tokens -> de-normalised features (B, T * downsample, D)."""
@@ -68,6 +78,25 @@ class MotionDecoder:
                               f"to {features.shape[1:]} frames x features; manifest model.downsample "
                               f"{self.dims.downsample} and model.feature_dim {self.dims.feature_dim} promise {want[1:]}")
         return self._finite("decoder", features)                                # (B, T * downsample, D)
+
+    def decode_step(self, tokens: np.ndarray, state: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Streams' next tokens (B, T, L) from their decoder state (each (B, reach, channels); zeros at a motion's
+        start) -> (features (B, T * downsample, D), the state after them). The frames equal `decode`'s of the
+        whole motion within float32 rounding, and each row's and each token's are the same bits however they are
+        batched (tests/export/test_decoder_step.py)."""
+        if "decoder_step" in self.one_row or "lookup" in self.one_row:
+            rows = [self.decode_step(tokens[r:r + 1], [s[r:r + 1] for s in state]) for r in range(len(tokens))]
+            return (np.concatenate([f for f, _ in rows]),
+                    [np.concatenate(s) for s in zip(*(st for _, st in rows))])
+        feed = {"latent": self.lookup(tokens), **{DECODER_STATE[0].format(i): np.ascontiguousarray(s, np.float32)
+                                                  for i, s in enumerate(state)}}
+        features, *nxt = self._run("decoder_step", self.decoder_step_session.run, None, feed)
+        want = (len(tokens), tokens.shape[1] * self.dims.downsample, self.dims.feature_dim)
+        if features.shape != want:
+            raise BundleError(f"{self.bundle.graph_path('decoder_step', self.variant)}: decoded {tokens.shape[1]} "
+                              f"tokens to {features.shape[1:]} frames x features; manifest model.downsample "
+                              f"{self.dims.downsample} and model.feature_dim {self.dims.feature_dim} promise {want[1:]}")
+        return self._finite("decoder_step", features), nxt
 
     def _run(self, graph: str, run, *args):
         """`run(*args)` of `graph`'s session; onnxruntime refusing to finish it (an output it cannot allocate, shapes
@@ -120,6 +149,8 @@ class OrtBackend(MotionDecoder):
         # the sessions we run are the ones checked against the manifest (Bundle.load for a variant does not)
         for graph, sess in (("text_encoder", self.text.session), ("step", self.step_session)):
             bundle.check_session(graph, sess, variant)
+        self._embedded: OrderedDict[str, np.ndarray] = OrderedDict()     # prompt -> its embedding (1, text_dim)
+        self._embedded_lock = threading.Lock()
         self.past_names = manifest.past_names
         self.output_names = ["logits", *manifest.present_names]
         self.cache_heads = self.dims.num_levels * self.dims.n_heads   # [rows, L * n_heads, past, head_dim]
@@ -130,7 +161,22 @@ class OrtBackend(MotionDecoder):
         return self._encode(texts)
 
     def _encode(self, texts: list[str]) -> np.ndarray:
-        return self._finite("text_encoder", self._run("text_encoder", self.text.encode, texts))   # (B, text_dim)
+        """(B, text_dim). A prompt embedded alone is kept (TEXT_CACHE of them, the least recently used go first):
+        a crowd's characters share few prompts, and a prompt costs ~5 ms on base's int8 encoder. Only a lone
+        prompt's: in a batch, padding could change a prompt's last bits."""
+        if len(texts) == 1:
+            with self._embedded_lock:
+                known = self._embedded.get(texts[0])
+                if known is not None:
+                    self._embedded.move_to_end(texts[0])
+                    return known.copy()
+        out = self._finite("text_encoder", self._run("text_encoder", self.text.encode, texts))
+        if len(texts) == 1:
+            with self._embedded_lock:
+                self._embedded[texts[0]] = out.copy()
+                while len(self._embedded) > TEXT_CACHE:
+                    self._embedded.popitem(last=False)
+        return out
 
     def empty_past(self, rows: int) -> list:
         empty = [np.zeros((1 if "step" in self.one_row else rows, self.cache_heads, 0, self.dims.head_dim),
@@ -225,7 +271,7 @@ class FixedCacheBackend(OrtBackend):
         (rows, 1, L, K + 1).
 
         Each cache array (rows, L * n_heads, capacity, head_dim), C-contiguous float32, is bound as both the past
-        and the present, so the graph's ScatterElements writes the new slot where it is instead of copying the
+        and the present, so the graph's ScatterND writes the new slot where it is instead of copying the
         whole cache (that copy was half a step's time at batch 128 on base; the results are the same bits,
         tests/runtime/test_crowd.py). Slots past `position` are masked out of attention: what an earlier context
         left there changes nothing."""

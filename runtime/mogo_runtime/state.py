@@ -72,6 +72,7 @@ def save_character(c: "Character") -> bytes:
             "finished_at": ctx.finished_at, "starts": ctx.starts, "restart": ctx.restart, "in_part": ctx.in_part},
         "frames": {
             "tokens": _array(maker.tokens), "count": maker.count, "pending": maker.pending, "frames": maker.frames,
+            "decoder_state": None if maker.state is None else [_array(a) for a in maker.state],
             "chunk": maker.chunk, "angle": root.angle, "position": root.position.tolist(),
             "previous": root.previous.tolist(), "offset": lock.offset.tolist(),
             "toes": None if lock.previous is None else [lock.previous[0].tolist(), lock.previous[1].tolist()]},
@@ -255,6 +256,14 @@ def _restore_into(character, top: _Fields, c: _Fields, dims, span: int, L: int, 
         f.fail("tokens", f"a window of {dims.receptive_field} + 1 to {MAX_CHUNK} tokens")
     maker.tokens = f.array("tokens", "<i8", (rows[0], L))
     maker.count, maker.pending, maker.frames = f.int("count"), f.int("pending", 0, maker.chunk), f.int("frames")
+    saved = f.data.get("decoder_state")     # absent from states saved before bundles had decoder_step
+    if (saved is None) != (maker.state is None) or (saved is not None and (
+            not isinstance(saved, list) or len(saved) != len(maker.state))):
+        f.fail("decoder_state", "present exactly when the bundle has a decoder_step graph, one array per state "
+                                f"({0 if maker.state is None else len(maker.state)})")
+    if saved is not None:
+        states = _Fields(dict(enumerate(saved)), f"{f.where}.decoder_state")
+        maker.state = [states.array(i, "<f4", a.shape) for i, a in enumerate(maker.state)]
     root, lock = maker.joints.root, maker.joints.lock
     root.angle, root.position, root.previous = f.real("angle"), f.reals("position", 2), f.reals("previous", 3)
     lock.offset = f.reals("offset", 2)

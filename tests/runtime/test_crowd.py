@@ -158,3 +158,22 @@ def test_mogo_crowd_writes_each_characters_lone_stream(portable_toy_bundle, tmp_
         assert main(args + bad) == 2
         err = capsys.readouterr().err
         assert err.startswith("mogo: error:") and message in err and err.count("\n") == 1, err
+
+
+def test_a_prompt_embedded_alone_is_kept_and_gives_the_same_bits(portable_toy_bundle):  # noqa: F811
+    """Characters share prompts: the second add of a prompt runs no text encoder, with the embedding the first got;
+    a batch of prompts is neither served from nor added to what is kept (padding could change its last bits)."""
+    gen = MotionGenerator(portable_toy_bundle, variant="fp32")
+    calls = []
+    encode = gen.backend.text.encode
+    gen.backend.text.encode = lambda texts, *a, **k: calls.append(list(texts)) or encode(texts, *a, **k)
+    first = gen.backend.encode_text([PROMPTS[0]])
+    again = gen.backend.encode_text([PROMPTS[0]])
+    assert np.array_equal(first, again) and calls == [[PROMPTS[0]]]
+    again[0, 0] += 1.0                                                    # a caller's copy: what is kept is not
+    assert np.array_equal(gen.backend.encode_text([PROMPTS[0]]), first)
+    batch = gen.backend.encode_text([PROMPTS[1], PROMPTS[2]])
+    assert len(calls) == 2
+    fresh = MotionGenerator(portable_toy_bundle, variant="fp32").backend.encode_text([PROMPTS[1]])
+    assert np.array_equal(gen.backend.encode_text([PROMPTS[1]]), fresh)   # alone: a lone call's bits
+    assert batch.shape == (2, fresh.shape[1])

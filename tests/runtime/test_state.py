@@ -108,6 +108,10 @@ def _edit(data: bytes, path: str, value) -> bytes:
     ("frames.position", [1.0], "frames.position must be"),
     ("frames.pending", 99, "frames.pending must be"),
     ("steering", {}, "steering must be present exactly"),
+    # the decoder_step graph's state (the portable toy has one): one array per state, float32 of its shape
+    ("frames.decoder_state", None, "frames.decoder_state must be present exactly"),
+    ("frames.decoder_state", [], "frames.decoder_state must be present exactly"),
+    ("frames.decoder_state", [{"dtype": "<f4", "shape": [1, 6], "data": "AAAAAA=="}], "decoder_state.0 must be"),
 ])
 def test_wrong_saved_state_is_refused_naming_the_field(gen, path, value, message):
     crowd = Crowd(gen)

@@ -9,6 +9,7 @@ from toy_bundle import control_toy_bundle, portable_toy_bundle  # noqa: F401  (f
 
 from mogo_runtime import MotionGenerator
 from mogo_runtime.bundle.folder import Bundle
+from mogo_runtime.bundle.sections import DECODING_GRAPHS
 from mogo_runtime.crowd import Crowd
 from mogo_runtime.wire import format as wire
 from mogo_runtime.wire.client import MotionClient
@@ -104,9 +105,10 @@ def test_a_steered_character_s_corrections_travel_with_its_tokens(control_toy_bu
     assert np.abs(np.concatenate(got["raw"])[:n] - plain[:n]).max() > 1e-3
 
 
-def test_a_decode_only_client_needs_only_the_lookup_and_the_decoder(portable_toy_bundle, tmp_path):  # noqa: F811
+def test_a_decode_only_client_needs_only_the_decoding_graphs(portable_toy_bundle, tmp_path):  # noqa: F811
     bundle = Bundle.load(portable_toy_bundle)
-    keep = {bundle.manifest.graph_file(g, "compact").file for g in ("lookup", "decoder")} | {"manifest.json"}
+    assert "decoder_step" in bundle.manifest.graph_names       # the lookup, the decoder and its step graph
+    keep = {bundle.manifest.graph_file(g, "compact").file for g in DECODING_GRAPHS} | {"manifest.json"}
     for f in portable_toy_bundle.iterdir():
         if f.name in keep:
             (tmp_path / f.name).write_bytes(f.read_bytes())

@@ -213,23 +213,61 @@ def _noise_scale() -> np.ndarray:
     return scale
 
 
-def decoder(rng, spec, mean: np.ndarray, opset: int = OPSET) -> onnx.ModelProto:
-    inits = {"pads": np.array([0, 0, RECEPTIVE, 0, 0, 0], np.int64),
-             "conv": (0.5 * rng.standard_normal((LATENT, LATENT, RECEPTIVE + 1))).astype(np.float32),
-             "w_out": (rng.standard_normal((LATENT, DOWNSAMPLE, D)) * _noise_scale()).reshape(LATENT, -1)
-             .astype(np.float32),
-             "bias": np.tile(mean.astype(np.float32), DOWNSAMPLE),
-             "frames_shape": np.array([0, -1, D], np.int64)}
+def decoder_weights(rng, mean: np.ndarray) -> dict:
+    return {"conv": (0.5 * rng.standard_normal((LATENT, LATENT, RECEPTIVE + 1))).astype(np.float32),
+            "w_out": (rng.standard_normal((LATENT, DOWNSAMPLE, D)) * _noise_scale()).reshape(LATENT, -1)
+            .astype(np.float32),
+            "bias": np.tile(mean.astype(np.float32), DOWNSAMPLE),
+            "frames_shape": np.array([0, -1, D], np.int64)}
+
+
+def _features(y: str) -> list:
+    """tanh(y) (B, T, C) -> features (B, T * ds, D), around the mean pose."""
+    return [helper.make_node("MatMul", [y, "w_out"], ["o"]),
+            helper.make_node("Add", ["o", "bias"], ["ob"]),                                  # (B, T, ds * D)
+            helper.make_node("Reshape", ["ob", "frames_shape"], ["features"])]               # (B, T * ds, D)
+
+
+def decoder(weights: dict, spec, opset: int = OPSET) -> onnx.ModelProto:
+    inits = {"pads": np.array([0, 0, RECEPTIVE, 0, 0, 0], np.int64), **weights}
     nodes = [helper.make_node("Transpose", ["latent"], ["x"], perm=[0, 2, 1]),                # (B, C, T)
              helper.make_node("Pad", ["x", "pads"], ["xp"]),                                  # causal: left only
              helper.make_node("Conv", ["xp", "conv"], ["y"]),                                 # (B, C, T)
              helper.make_node("Tanh", ["y"], ["ya"]),
              helper.make_node("Transpose", ["ya"], ["yt"], perm=[0, 2, 1]),                   # (B, T, C)
-             helper.make_node("MatMul", ["yt", "w_out"], ["o"]),
-             helper.make_node("Add", ["o", "bias"], ["ob"]),                                  # (B, T, ds * D)
-             helper.make_node("Reshape", ["ob", "frames_shape"], ["features"])]               # (B, T * ds, D)
+             *_features("yt")]
     return _model(nodes, "toy_decoder", _io(spec["inputs"]), _io(spec["outputs"]), inits, {"graph": "decoder"},
                   opset)
+
+
+def decoder_step(weights: dict, opset: int = OPSET) -> onnx.ModelProto:
+    """The toy decoder with its state explicit (docs/bundle.md, decoder_step): the last RECEPTIVE latents. Its conv
+    is one MatMul over the taps side by side, as the exporter's (so a token's frames are the same bits at any chunk)."""
+    taps = weights["conv"].transpose(2, 1, 0).reshape((RECEPTIVE + 1) * LATENT, LATENT)      # [k * in, out]
+    inits = {"state_start": np.array([-RECEPTIVE], np.int64), "end": np.array([2 ** 62], np.int64),
+             "time_axis": np.array([1], np.int64), "taps": np.ascontiguousarray(taps),
+             **{f"tap_{j}": np.array([j], np.int64) for j in range(RECEPTIVE + 1)},
+             **{f"tap_end_{j}": np.array([j - RECEPTIVE], np.int64) for j in range(RECEPTIVE)},
+             **{k: v for k, v in weights.items() if k != "conv"}}
+    nodes = [helper.make_node("Concat", ["decoder_state.0", "latent"], ["seen"], axis=1),     # (B, R + T, C)
+             helper.make_node("Slice", ["seen", "state_start", "end", "time_axis"], ["next_decoder_state.0"]),
+             *(helper.make_node("Slice", ["seen", f"tap_{j}", f"tap_end_{j}" if j < RECEPTIVE else "end", "time_axis"],
+                                [f"x{j}"]) for j in range(RECEPTIVE + 1)),                   # (B, T, C) each
+             helper.make_node("Concat", [f"x{j}" for j in range(RECEPTIVE + 1)], ["x"], axis=2),
+             helper.make_node("MatMul", ["x", "taps"], ["y"]),                                # (B, T, C)
+             helper.make_node("Tanh", ["y"], ["ya"]),
+             *_features("ya")]
+    spec = decoder_step_spec()
+    return _model(nodes, "toy_decoder_step", _io(spec["inputs"]), _io(spec["outputs"]), inits,
+                  {"graph": "decoder_step"}, opset)
+
+
+def decoder_step_spec() -> dict:
+    state = {"dtype": "float32", "shape": ["batch", RECEPTIVE, LATENT]}
+    return {"inputs": [{"name": "latent", "dtype": "float32", "shape": ["batch", "tokens", LATENT]},
+                       {"name": "decoder_state.0", **state}],
+            "outputs": [{"name": "features", "dtype": "float32", "shape": ["batch", "frames", D]},
+                        {"name": "next_decoder_state.0", **state}]}
 
 
 def word_tokenizer(words: list[str]) -> Tokenizer:
@@ -297,8 +335,10 @@ def control_weights(seed: int) -> np.ndarray:
 
 
 def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = True, streaming: bool = True,
-                     portable: bool = False, ort: bool = False, control: bool = False) -> Path:
-    """Write a complete bundle to `out` (graphs, tokenizer.json, manifest.json with sizes and hashes)."""
+                     portable: bool = False, ort: bool = False, control: bool = False,
+                     with_decoder_step: bool | None = None) -> Path:
+    """Write a complete bundle to `out` (graphs, tokenizer.json, manifest.json with sizes and hashes).
+    `with_decoder_step`: the decoder_step graph too (default: with the portable variant, as the exporter writes)."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
     out = Path(out)
@@ -312,7 +352,11 @@ def build_toy_bundle(out: Path, mean: np.ndarray, seed: int = 0, int8: bool = Tr
     step_rng = copy.deepcopy(rng)                      # the portable step: the same weights
     onnx.save(step(rng, specs["step"], opset=opset, w_control=w_control), out / "step.onnx")
     onnx.save(lookup(rng, specs["lookup"], opset), out / "lookup.onnx")
-    onnx.save(decoder(rng, specs["decoder"], mean, opset), out / "decoder.onnx")
+    weights = decoder_weights(rng, mean)
+    onnx.save(decoder(weights, specs["decoder"], opset), out / "decoder.onnx")
+    if portable if with_decoder_step is None else with_decoder_step:
+        specs["decoder_step"] = decoder_step_spec()
+        onnx.save(decoder_step(weights, opset), out / "decoder_step.onnx")
     configure_tokenizer(word_tokenizer(WORDS), TokenizerSettings(max_length=MAX_LEN)).save(str(out / "tokenizer.json"))
     fp32 = {g: GraphFile(f"{g}.onnx") for g in specs}
     variants = {"fp32": fp32}

@@ -6,9 +6,9 @@ import { shown } from '../checks.js';
 import { featureLayout } from '../kinematics/features.js';
 import { SKELETONS, storedSkeleton } from '../kinematics/skeleton.js';
 import {
-  BATCH_INVARIANT, Fields, GRAPHS, PER_ROW_INT8, WEIGHT_INT8, cacheNames, kind, parseCache, parseFiles, parseGraph, parseModel,
+  BATCH_INVARIANT, Fields, PER_ROW_INT8, WEIGHT_INT8, cacheNames, kind, parseCache, parseFiles, parseGraph, parseModel,
   parseControl, parseNormalization, parseOrt, parsePortable, parseSampling, parseStreaming, parseTca, parseTextEncoder,
-  parseVariants, sameJson,
+  parseVariants, presentGraphs, sameJson,
 } from './sections.js';
 
 export const SCHEMA = 'mogo-bundle';
@@ -20,6 +20,7 @@ const GRAPH_IO = {
   lookup: [{ tokens: 3 }, { latent: 3 }],
   decoder: [{ latent: 3 }, { features: 3 }],
 };
+const DECODER_STATE = ['decoder_state.', 'next_decoder_state.'];   // decoder_step's state inputs and outputs + i
 const ORT_SUFFIX = '.ort';          // graph files in onnxruntime's ORT format (section `ort`)
 const PORTABLE = 'portable';        // the variant whose step graph has a fixed-capacity cache (section `portable`)
 const INT8_FIXED = 'int8_fixed';    // the same step graph in per-row int8: batch-invariant
@@ -52,7 +53,7 @@ export function parseManifest(data, where) {
     samplingDefaults: parseSampling(f.sub('sampling_defaults')),
     cache: parseCache(f.sub('cache')),
     files: parseFiles(f.sub('files')),
-    graphs: Object.fromEntries(GRAPHS.map((g) => [g, parseGraph(f.sub('graphs').sub(g))])),
+    graphs: Object.fromEntries(presentGraphs(f.get('graphs')).map((g) => [g, parseGraph(f.sub('graphs').sub(g))])),
     variants: parseVariants(f.sub('variants')),
     tca: f.optional('tca', (s) => parseTca(s, model)),
     ort: f.optional('ort', parseOrt),
@@ -68,6 +69,7 @@ export function parseManifest(data, where) {
   m.pastNames = cacheNames(m.cache.past, model.nLayers);
   m.presentNames = cacheNames(m.cache.present, model.nLayers);
   checkAgreement(m, f);
+  checkDecoderStep(m, f);
   checkFixedCache(m, f);
   checkOrt(m, f);
   return deepFreeze(m);
@@ -79,8 +81,14 @@ export function parseManifest(data, where) {
  */
 export const fixedCache = (manifest, variant) => FIXED_CACHE.includes(manifest.ort?.variants[variant] ?? variant);
 
+/** The graphs this bundle has (in every variant): GRAPHS, and the optional ones it has. */
+export const graphNames = (manifest) => presentGraphs(manifest.graphs);
+
+/** decoder_step's state, [reach, channels] per input (zeros at a motion's start); null: no decoder_step. */
+export const decoderState = (manifest) => manifest.graphs.decoder_step?.inputs.slice(1).map((s) => s.shape.slice(1)) ?? null;
+
 /** The graphs that run one row per call: those quantized per tensor, whose rows would depend on each other. */
-export const rowByRow = (manifest, variant) => new Set(GRAPHS.filter((g) => manifest.variants[variant][g].quantized
+export const rowByRow = (manifest, variant) => new Set(graphNames(manifest).filter((g) => manifest.variants[variant][g].quantized
   && !BATCH_INVARIANT.includes(manifest.variants[variant][g].quantization.method)));
 
 /** The inputs and outputs a variant's graph has: the portable step's differ from `graphs.step`. */
@@ -113,7 +121,13 @@ const each = (names, value) => Object.fromEntries(names.map((n) => [n, value]));
 
 /** Files named by variants and sections are listed; each graph's I/O names and ranks; the step's I/O is the cache. */
 function checkAgreement(m, f) {
+  const names = graphNames(m);
   for (const [v, graphs] of Object.entries(m.variants)) {
+    const odd = [...new Set([...Object.keys(graphs), ...names])].filter((g) => !Object.hasOwn(graphs, g) || !names.includes(g)).sort()[0];
+    if (odd !== undefined) {
+      f.fail(`variants.${v}.${odd}`, Object.hasOwn(graphs, odd) ? "the bundle's 'graphs' section does not describe this graph"
+        : "missing: every variant has each graph the 'graphs' section describes");
+    }
     for (const [g, { file }] of Object.entries(graphs)) {
       if (!Object.hasOwn(m.files, file)) f.fail(`variants.${v}.${g}.file`, `${shown(file)} is not in 'files'`);
     }
@@ -147,6 +161,40 @@ function checkAgreement(m, f) {
   }
 }
 
+/**
+ * decoder_step: latent, then its state inputs decoder_state.0, 1, ...; features, then next_decoder_state.i of the same
+ * fixed shapes [batch, reach, channels]: what a consumer allocates, zeros, for a new motion.
+ */
+function checkDecoderStep(m, f) {
+  const spec = m.graphs.decoder_step;
+  if (!spec) return;
+  const n = spec.inputs.length - 1;
+  const names = { inputs: ['latent', ...Array.from({ length: n }, (_, i) => `${DECODER_STATE[0]}${i}`)],
+    outputs: ['features', ...Array.from({ length: n }, (_, i) => `${DECODER_STATE[1]}${i}`)] };
+  for (const [io, want] of Object.entries(names)) {
+    const got = spec[io].map((s) => s.name);
+    if (!sameJson(got, want) || n < 1) {
+      f.fail(`graphs.decoder_step.${io}`, `names are ${shown(got, 200)}, expected ${shown(want, 200)} (at least one state)`);
+    }
+  }
+  const { latentDim, featureDim } = m.model;
+  if (!spec.inputs.every((s) => s.shape.length === 3) || spec.inputs[0].shape[2] !== latentDim) {
+    f.fail('graphs.decoder_step.inputs', `latent is [batch, tokens, ${latentDim}] and each state [batch, reach, channels]`);
+  }
+  spec.inputs.slice(1).forEach((sIn, i) => {
+    const sOut = spec.outputs[i + 1], dims = sIn.shape.slice(1);
+    if (sIn.dtype !== 'float32' || !dims.every((d) => Number.isInteger(d) && d >= 1 && d <= 4096)
+      || !sameJson(sOut.shape, sIn.shape) || sOut.dtype !== sIn.dtype) {
+      f.fail(`graphs.decoder_step.inputs[${i + 1}]`, `${shown(sIn.name)} is ${sIn.dtype} ${shown(sIn.shape)} and its output `
+        + `${shown(sOut.shape)}; expected float32 [batch, reach, channels] with fixed sizes 1..4096, the same both ways`);
+    }
+  });
+  const features = spec.outputs[0].shape;
+  if (features.length !== 3 || features[2] !== featureDim) {
+    f.fail('graphs.decoder_step.outputs[0]', `features is ${shown(features)}, expected [batch, frames, ${featureDim}]`);
+  }
+}
+
 /** The portable section and the portable variant come together; the step's I/O is the fixed cache. */
 function checkFixedCache(m, f) {
   const has = (v) => Object.hasOwn(m.variants, v);
@@ -158,14 +206,14 @@ function checkFixedCache(m, f) {
     if (has(v) && !has(PORTABLE)) f.fail(`variants.${v}`, `comes with variant "${PORTABLE}", whose section 'portable' describes its step graph`);
   }
   if (m.portable === null) return;
-  const quantized = GRAPHS.find((g) => m.variants[PORTABLE][g].quantized);
+  const quantized = graphNames(m).find((g) => m.variants[PORTABLE][g].quantized);
   if (quantized) f.fail(`variants.${PORTABLE}.${quantized}.quantization`, 'the portable variant is fp32 only (no int8 operators)');
   const fixedStep = has(INT8_FIXED) ? m.variants[INT8_FIXED].step : null;
   if (fixedStep && fixedStep.quantization?.method !== PER_ROW_INT8) {
     f.fail(`variants.${INT8_FIXED}.step.quantization`, `its step graph is the portable step quantized per row (method `
       + `"${PER_ROW_INT8}"), got ${shown(fixedStep.quantization)}`);
   }
-  for (const g of has(COMPACT) ? GRAPHS : []) {
+  for (const g of has(COMPACT) ? graphNames(m) : []) {
     const q = m.variants[COMPACT][g].quantization;
     if (q?.method !== WEIGHT_INT8) {
       f.fail(`variants.${COMPACT}.${g}.quantization`, 'every graph of the compact variant stores its weights in int8 '
@@ -209,7 +257,7 @@ function checkOrt(m, f) {
     if (!has(v) || !has(source) || Object.hasOwn(ort, source)) {
       f.fail(`ort.variants.${v}`, `${shown(v)} converted from ${shown(source)}: both must be variants, the source not itself in ORT format`);
     }
-    for (const g of GRAPHS) {
+    for (const g of graphNames(m)) {
       if (!sameJson(m.variants[v][g].quantization, m.variants[source][g].quantization)) {
         f.fail(`variants.${v}.${g}.quantization`, `differs from variant ${shown(source)}, which it was converted from`);
       }

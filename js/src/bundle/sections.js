@@ -5,7 +5,12 @@
 import { oneLine, shown } from '../checks.js';
 import { SamplingConfig } from './sampling.js';
 
-export const GRAPHS = ['text_encoder', 'step', 'lookup', 'decoder'];
+export const GRAPHS = ['text_encoder', 'step', 'lookup', 'decoder'];   // every bundle's
+// graphs a bundle may have, in every variant or none: the decoder with its causal state explicit (docs/bundle.md)
+export const OPTIONAL_GRAPHS = ['decoder_step'];
+export const DECODING_GRAPHS = ['lookup', 'decoder', 'decoder_step'];   // tokens -> frames: all a decode-only client opens
+/** The graphs a `graphs` (or variant) object names: GRAPHS, and the optional ones it has. */
+export const presentGraphs = (obj) => [...GRAPHS, ...OPTIONAL_GRAPHS.filter((g) => kind(obj) === 'object' && Object.hasOwn(obj, g))];
 export const DTYPES = ['float32', 'int64', 'float16'];
 export const PER_ROW_INT8 = 'mogo.per_row_dynamic';   // int8 with one activation scale per row: batchable
 export const WEIGHT_INT8 = 'mogo.weight_only_int8';   // int8 weights turned back to float32 in the graph, float32 arithmetic
@@ -274,7 +279,7 @@ export function parseVariants(f) {
   const variants = {};
   for (const v of Object.keys(f.obj)) {
     const graphs = f.sub(v);
-    variants[v] = Object.fromEntries(GRAPHS.map((g) => {
+    variants[v] = Object.fromEntries(presentGraphs(graphs.obj).map((g) => {
       const e = graphs.sub(g), q = e.get('quantization', null);
       if (q !== null && kind(q) !== 'object') e.fail('quantization', `expected an object or null, got ${kind(q)}`);
       const file = e.str('file'), quantized = q !== null && Object.keys(q).length > 0;

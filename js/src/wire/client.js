@@ -1,5 +1,5 @@
-// A decode-only client: tokens in, frames out, with the bundle's lookup and decoder graphs alone
-// (runtime/mogo_runtime/wire/client.py). It reads the manifest and those two graphs, nothing else: no step graph,
+// A decode-only client: tokens in, frames out, with the bundle's decoding graphs alone (lookup, decoder,
+// decoder_step; runtime/mogo_runtime/wire/client.py). It reads the manifest and those graphs, nothing else: no step graph,
 // no text encoder, no tokenizer (on `base`'s compact variant 0.9 MB of graphs instead of 32 MB).
 //
 //   const client = await MotionClient.load('bundles/base', { variant: 'compact' });   // the tokens' variant
@@ -16,7 +16,7 @@ import { Bundle } from '../bundle/folder.js';
 import { concat, fileLoader, toHex } from '../bundle/io.js';
 import { oneLine, shown } from '../checks.js';
 import { RootWarp } from '../control/warp.js';
-import { FrameMaker, checkChunk } from '../decoding.js';
+import { FrameMaker, checkChunk, decodeDue } from '../decoding.js';
 import { MotionDecoder } from '../engine.js';
 import { END, Event, Hello, PROMPT, RecordReader, START, Tokens, Warp, WireError, decoderId } from './format.js';
 
@@ -132,7 +132,7 @@ export class MotionClient {
       const old = this.characters.get(event.character);
       if (old !== undefined && !old.ended) throw new WireError(`character ${event.character} started twice`);
       if (this.characters.size >= MAX_CHARACTERS) throw new WireError(`more than ${MAX_CHARACTERS} characters in one stream`);
-      const maker = new FrameMaker(this.dims, this.skeleton, this.chunk);
+      const maker = new FrameMaker(this.dims, this.skeleton, this.chunk, this.decoder.decoderState);
       // frame numbers as the generator's (WARP records name frames); a character that started before the client
       // joined decodes from an empty window, at the origin: its joints are not the generator's
       maker.frames = event.seq * this.dims.downsample;
@@ -161,7 +161,7 @@ export class MotionClient {
   }
 
   async #frames(c, n) {
-    const frames = c.frames.framesFrom(await this.decoder.decode(c.frames.window(n), 1));
+    const frames = c.frames.framesFrom(await decodeDue(this.decoder, [c.frames], n));
     frames.joints = c.warp.joints(frames.index, frames.joints, this.skeleton.parents.length * 3);
     return frames;
   }

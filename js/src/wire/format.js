@@ -14,7 +14,7 @@
 // runtimes refuse a broken stream with the same words.
 
 import { concat, sha256 } from '../bundle/io.js';
-import { BundleError } from '../bundle/sections.js';
+import { BundleError, DECODING_GRAPHS } from '../bundle/sections.js';
 import { oneLine, shown } from '../checks.js';
 
 export const MAGIC = 'MOGT';
@@ -88,7 +88,8 @@ export async function decoderId(manifest, variant) {
     throw new BundleError(`unknown variant ${shown(variant)}; this bundle has `
       + `${oneLine(Object.keys(manifest.variants).join(', '), 200)}`);
   }
-  const hexes = ['lookup', 'decoder'].map((graph) => manifest.files[manifest.variants[variant][graph].file].sha256);
+  const graphs = DECODING_GRAPHS.filter((g) => Object.hasOwn(manifest.variants[variant], g));
+  const hexes = graphs.map((graph) => manifest.files[manifest.variants[variant][graph].file].sha256);
   return (await sha256(new TextEncoder().encode(hexes.join('')))).slice(0, 8);
 }
 

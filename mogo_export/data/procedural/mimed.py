@@ -394,7 +394,6 @@ def climb_ladder(rng, budget: TimeBudget = FULL_BUDGET) -> Action:
 
 def open_door(rng, budget: TimeBudget = FULL_BUDGET) -> Action:
     side = str(rng.choice(["right", "left"]))
-    other = OTHER[side]
     sgn = SIDES[side]["sign"]
     steps = int(rng.integers(2, 5))
     cadence, stride = rng.uniform(1.6, 1.9), rng.uniform(0.85, 1.05)

@@ -20,7 +20,7 @@ from pathlib import Path
 from ..checks import read_file
 from .manifest import Manifest
 from .onnxfile import ProtobufError, external_data
-from .sections import DTYPES, GRAPHS, BundleError, ModelDims
+from .sections import DTYPES, GRAPHS, OPTIONAL_GRAPHS, BundleError, ModelDims
 
 MANIFEST_MAX_BYTES = 16 << 20   # a real manifest is ~30 KB; refuse to parse anything huge
 GRAPH_MAX_BYTES = (2 << 30) - 1  # protobuf's limit: onnxruntime cannot parse a larger self-contained ONNX file
@@ -67,22 +67,23 @@ class Bundle:
         return list(self.manifest.variants)
 
     @classmethod
-    def load(cls, path: str | Path, variant: str | None = None, graphs: tuple[str, ...] = GRAPHS) -> "Bundle":
+    def load(cls, path: str | Path, variant: str | None = None, graphs: tuple[str, ...] | None = None) -> "Bundle":
         """The bundle in folder `path`. Without `variant` every listed file is checked now: hashed, and each graph
         opened and held to the manifest's inputs and outputs. With `variant`, only that variant's files must be
         there, at their sizes; their bytes are checked as they are read, each once (an int8 generator never reads
         the 90 MB fp32 text encoder: cold start ~1.9 s -> ~0.2 s on base, benchmarks/NOTES.md). `graphs`: of that
-        variant, the graphs used (a decode-only client ships the lookup and the decoder alone)."""
+        variant, the graphs used (a decode-only client ships the lookup and the decoders alone); None: all."""
         bundle = cls(Path(path), read_manifest(path))
         if variant is not None and variant not in bundle.manifest.variants:
             raise BundleError(f"{path}: unknown variant {variant!r}; this bundle has {', '.join(bundle.variants)}")
-        unknown = sorted(set(graphs) - set(GRAPHS))
+        unknown = sorted(set(graphs or ()) - set(GRAPHS + OPTIONAL_GRAPHS))
         if unknown:
-            raise ValueError(f"unknown graphs {unknown}; a bundle's graphs are {', '.join(GRAPHS)}")
+            raise ValueError(f"unknown graphs {unknown}; a bundle's graphs are {', '.join(GRAPHS + OPTIONAL_GRAPHS)}")
+        graphs = bundle.manifest.graph_names if graphs is None else graphs
         graph_files = {e.file for gs in bundle.manifest.variants.values() for e in gs.values()}
         used = graph_files if variant is None else {e.file for g, e in bundle.manifest.variants[variant].items()
                                                     if g in graphs}
-        extras = variant is None or set(graphs) == set(GRAPHS)     # the tokenizer, the TCA index: prompts' files
+        extras = variant is None or set(GRAPHS) <= set(graphs)     # the tokenizer, the TCA index: prompts' files
         for name in bundle.manifest.files:
             if name in used or (extras and name not in graph_files):
                 if variant is None and name not in graph_files:   # graphs are hashed as their sessions open
@@ -143,7 +144,7 @@ class Bundle:
         opts.log_severity_level = 4    # our own errors name the file; onnxruntime's lines would only add to them
         seen: set[str] = set()
         for variant in variants or self.variants:
-            for graph in GRAPHS:
+            for graph in self.manifest.graph_names:
                 name = self.manifest.graph_file(graph, variant).file
                 if name not in seen:
                     seen.add(name)
@@ -188,7 +189,7 @@ class Bundle:
                                   f"is {value!r}")
 
     def total_bytes(self, variant: str = "fp32") -> int:
-        names = {self.manifest.graph_file(g, variant).file for g in GRAPHS}
+        names = {self.manifest.graph_file(g, variant).file for g in self.manifest.graph_names}
         graph_files = {e.file for gs in self.manifest.variants.values() for e in gs.values()}
         extra = [n for n in self.manifest.files if n not in graph_files]
         return sum(self.manifest.files[n][0] for n in names | set(extra))

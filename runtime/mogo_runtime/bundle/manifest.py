@@ -14,7 +14,7 @@ from ..checks import Fields, kind, shown
 from ..kinematics.features import FeatureLayout
 from ..kinematics.skeleton import SKELETONS, Skeleton
 from .sampling import SamplingConfig
-from .sections import (GRAPHS, NORMALIZATION, PER_ROW_INT8, WEIGHT_INT8, BundleError, CacheNames, ControlSpec,
+from .sections import (GRAPHS, NORMALIZATION, OPTIONAL_GRAPHS, PER_ROW_INT8, WEIGHT_INT8, BundleError, CacheNames, ControlSpec,
                        GraphFile, GraphSpec, ModelDims, Normalization, OrtFormat, PortableSpec, StreamingSpec,
                        TcaSpec, TextEncoderSpec, parse_files, parse_sampling, parse_variants)
 
@@ -26,6 +26,7 @@ GRAPH_IO = {"text_encoder": ({"input_ids": 2, "attention_mask": 2}, {"text_embed
             "step": ({"text_embedding": 2, "tokens": 3}, {"logits": 4}),
             "lookup": ({"tokens": 3}, {"latent": 3}),
             "decoder": ({"latent": 3}, {"features": 3})}
+DECODER_STATE = ("decoder_state.{}", "next_decoder_state.{}")   # decoder_step's state inputs and outputs, i = 0, 1, ...
 ORT_SUFFIX = ".ort"            # graph files in onnxruntime's ORT format (section `ort`)
 PORTABLE = "portable"          # the variant whose step graph has a fixed-capacity cache (section `portable`)
 INT8_FIXED = "int8_fixed"      # the same step graph in per-row int8: batch-invariant, so a crowd can batch it
@@ -67,6 +68,17 @@ class Manifest:
     @property
     def present_names(self) -> list[str]:
         return self.cache.names(self.cache.present, self.model.n_layers)
+
+    @property
+    def graph_names(self) -> tuple[str, ...]:
+        """The graphs this bundle has (in every variant): GRAPHS, and the optional ones it has."""
+        return GRAPHS + tuple(g for g in OPTIONAL_GRAPHS if g in self.graphs)
+
+    @property
+    def decoder_state(self) -> tuple[tuple[int, int], ...] | None:
+        """decoder_step's state, [reach, channels] per input (zeros at a motion's start); None: no decoder_step."""
+        spec = self.graphs.get("decoder_step")
+        return None if spec is None else tuple(tuple(s.shape[1:]) for s in spec.inputs[1:])
 
     def graph_file(self, graph: str, variant: str) -> GraphFile:
         if variant not in self.variants:
@@ -128,7 +140,8 @@ class Manifest:
                    text_encoder=TextEncoderSpec.parse(f.sub("text_encoder")),
                    sampling_defaults=parse_sampling(f.sub("sampling_defaults")),
                    cache=CacheNames.parse(f.sub("cache")), producer=producer, files=parse_files(f.sub("files")),
-                   graphs={g: GraphSpec.parse(f.sub("graphs").sub(g)) for g in GRAPHS},
+                   graphs={g: GraphSpec.parse(f.sub("graphs").sub(g)) for g in GRAPHS + tuple(
+                       g for g in OPTIONAL_GRAPHS if isinstance(f.get("graphs"), dict) and g in f.get("graphs"))},
                    variants=parse_variants(f.sub("variants")), streaming=streaming,
                    **{k: None if f.get(k, None) is None else parse(f.sub(k)) for k, parse in optional.items()}
                    ).checked(where)
@@ -136,6 +149,11 @@ class Manifest:
     def checked(self, where: str) -> "Manifest":
         """Agreement between sections: files named by variants are listed, the step graph's I/O is the cache."""
         for v, graphs in self.variants.items():
+            if set(graphs) != set(self.graph_names):
+                odd = sorted(set(graphs) ^ set(self.graph_names))[0]
+                raise BundleError(f"{where}: field variants.{v}.{odd}: " + (
+                    "the bundle's 'graphs' section does not describe this graph" if odd in graphs else
+                    "missing: every variant has each graph the 'graphs' section describes"))
             for g, entry in graphs.items():
                 if entry.file not in self.files:
                     raise BundleError(f"{where}: field variants.{v}.{g}.file: {entry.file!r} is not in 'files'")
@@ -163,9 +181,40 @@ class Manifest:
         if len(logits) != 4 or logits[2:] != (m.num_levels, m.codebook_size + 1):
             raise BundleError(f"{where}: field graphs.step.outputs[0].shape: {list(logits)} should end in "
                               f"[{m.num_levels}, {m.codebook_size + 1}] (levels, codes + END)")
+        self._check_decoder_step(where)
         self._check_fixed_cache(where)
         self._check_ort(where)
         return self
+
+    def _check_decoder_step(self, where: str) -> None:
+        """decoder_step: latent, then its state inputs decoder_state.0, 1, ...; features, then next_decoder_state.i
+        of the same fixed shapes [batch, reach, channels]: what a consumer allocates, zeros, for a new motion."""
+        spec = self.graphs.get("decoder_step")
+        if spec is None:
+            return
+        n = len(spec.inputs) - 1
+        names = {"inputs": ["latent", *(DECODER_STATE[0].format(i) for i in range(n))],
+                 "outputs": ["features", *(DECODER_STATE[1].format(i) for i in range(n))]}
+        for kind_, want in names.items():
+            got = [s.name for s in getattr(spec, kind_)]
+            if got != want or n < 1:
+                raise BundleError(f"{where}: field graphs.decoder_step.{kind_}: names are {shown(got, 300)}, "
+                                  f"expected {shown(want, 300)} (at least one state)")
+        m = self.model
+        if [len(s.shape) for s in spec.inputs] != [3] * (n + 1) or spec.inputs[0].shape[2] != m.latent_dim:
+            raise BundleError(f"{where}: field graphs.decoder_step.inputs: latent is [batch, tokens, "
+                              f"{m.latent_dim}] and each state [batch, reach, channels]")
+        for i, (s_in, s_out) in enumerate(zip(spec.inputs[1:], spec.outputs[1:])):
+            dims = s_in.shape[1:]
+            if (s_in.dtype != "float32" or not all(isinstance(d, int) and 1 <= d <= 4096 for d in dims)
+                    or s_out.shape != s_in.shape or s_out.dtype != s_in.dtype):
+                raise BundleError(f"{where}: field graphs.decoder_step.inputs[{i + 1}]: {s_in.name!r} is "
+                                  f"{s_in.dtype} {list(s_in.shape)} and its output {list(s_out.shape)}; expected "
+                                  f"float32 [batch, reach, channels] with fixed sizes 1..4096, the same both ways")
+        features = spec.outputs[0]
+        if len(features.shape) != 3 or features.shape[2] != m.feature_dim:
+            raise BundleError(f"{where}: field graphs.decoder_step.outputs[0]: features is {list(features.shape)}, "
+                              f"expected [batch, frames, {m.feature_dim}]")
 
     def _check_fixed_cache(self, where: str) -> None:
         """The portable section and the portable variant come together; the step's I/O is the fixed cache."""

@@ -11,7 +11,10 @@ from pathlib import PurePosixPath
 from ..checks import NAME_MAX, Fields, kind, shown
 from .sampling import SamplingConfig
 
-GRAPHS = ("text_encoder", "step", "lookup", "decoder")
+GRAPHS = ("text_encoder", "step", "lookup", "decoder")     # every bundle's
+# graphs a bundle may have, in every variant or none: the decoder with its causal state explicit (docs/bundle.md)
+OPTIONAL_GRAPHS = ("decoder_step",)
+DECODING_GRAPHS = ("lookup", "decoder", "decoder_step")    # tokens -> frames: all a decode-only client opens
 DTYPES = {"float32": "tensor(float)", "int64": "tensor(int64)", "float16": "tensor(float16)"}  # -> onnxruntime
 PER_ROW_INT8 = "mogo.per_row_dynamic"   # int8 with one activation scale per row (export/rowquant.py): batchable
 WEIGHT_INT8 = "mogo.weight_only_int8"   # int8 weights turned back to float32 in the graph, float32 arithmetic
@@ -366,7 +369,7 @@ def parse_variants(f: Fields) -> dict[str, dict[str, GraphFile]]:
     for v in f.obj:
         graphs = f.sub(v)
         entries = {}
-        for g in GRAPHS:
+        for g in GRAPHS + tuple(g for g in OPTIONAL_GRAPHS if isinstance(graphs.obj, dict) and g in graphs.obj):
             e = graphs.sub(g)
             q = e.get("quantization", None)
             if q is not None and not isinstance(q, dict):

@@ -1,12 +1,12 @@
-"""A decode-only client: tokens in, frames out, with the bundle's lookup and decoder graphs alone (no step graph,
-no text encoder: on `base`'s compact variant 0.9 MB of graphs instead of 32 MB).
+"""A decode-only client: tokens in, frames out, with the bundle's decoding graphs alone (lookup, decoder,
+decoder_step; no step graph, no text encoder: on `base`'s compact variant 0.9 MB of graphs instead of 32 MB).
 
     client = MotionClient("bundles/base", variant="compact")     # the variant the tokens were generated with
     for message in connection:                                   # token-stream records (wire/format.py)
         for ident, frames in client.receive(message).items():
             show(ident, frames.joints)                           # (n, J, 3) metres, y up
 
-A character's frames are made as a generator makes them (decoding.FrameMaker: the causal decoder's window, the root
+A character's frames are made as a generator makes them (decoding.FrameMaker: the causal decoder, the root
 integrated, planted toes held; then the root corrections of a steered character, replayed from its WARP records),
 so on the same machine they are the generating runtime's joints bit for bit. A game-owned root (`set_root`) is not
 in the stream: each machine puts the frames on the capsule its own game replicates.
@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from ..bundle.folder import Bundle
+from ..bundle.sections import DECODING_GRAPHS
 from ..control.warp import RootWarp
-from ..decoding import FrameMaker, Frames, check_chunk
+from ..decoding import FrameMaker, Frames, check_chunk, decode_due
 from ..engine import MotionDecoder
 from .format import END, PROMPT, START, Event, Hello, Record, RecordReader, Tokens, Warp, WireError, decoder_id
 
@@ -44,7 +45,7 @@ class MotionClient:
     are the same bits whatever the chunk)."""
 
     def __init__(self, bundle: Bundle | str | Path, variant: str = "fp32", threads: int = 1, chunk: int = 1):
-        self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle, variant, ("lookup", "decoder"))
+        self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle, variant, DECODING_GRAPHS)
         self.decoder = MotionDecoder(self.bundle, variant, threads)
         self.dims, self.skeleton, self.chunk = self.bundle.dims, self.bundle.skeleton, check_chunk(chunk)
         self.id = decoder_id(self.bundle.manifest, variant)
@@ -102,7 +103,7 @@ class MotionClient:
                 raise WireError(f"character {event.character} started twice")
             if len(self.characters) >= MAX_CHARACTERS:
                 raise WireError(f"more than {MAX_CHARACTERS} characters in one stream")
-            maker = FrameMaker(self.dims, self.skeleton, self.chunk)
+            maker = FrameMaker(self.dims, self.skeleton, self.chunk, self.decoder.decoder_state)
             # frame numbers as the generator's (WARP records name frames); a character that started before the
             # client joined decodes from an empty window, at the origin: its joints are not the generator's
             maker.frames = event.seq * self.dims.downsample
@@ -128,7 +129,7 @@ class MotionClient:
             out.setdefault(c.ident, []).append(self._frames(c, n))
 
     def _frames(self, c: ClientCharacter, n: int) -> Frames:
-        frames = c.frames.frames_from(self.decoder.decode(c.frames.window(n)[None])[0])
+        frames = c.frames.frames_from(decode_due(self.decoder, [c.frames], n)[0])
         frames.joints = c.warp.joints(frames.index, frames.joints)
         return frames
 

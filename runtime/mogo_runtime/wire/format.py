@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..bundle.manifest import Manifest
+from ..bundle.sections import DECODING_GRAPHS
 
 MAGIC = b"MOGT"
 VERSION = 1
@@ -100,8 +101,9 @@ Record = Hello | Tokens | Event | Warp | Joints | Tick
 
 
 def decoder_id(manifest: Manifest, variant: str) -> bytes:
-    """8 bytes naming the lookup and decoder graphs of `variant`: equal ids decode tokens to the same frames."""
-    files = [manifest.graph_file(graph, variant).file for graph in ("lookup", "decoder")]
+    """8 bytes naming the decoding graphs of `variant` (lookup, decoder, and decoder_step where the bundle has it):
+    equal ids decode tokens to the same frames."""
+    files = [manifest.graph_file(graph, variant).file for graph in DECODING_GRAPHS if graph in manifest.graph_names]
     return hashlib.sha256("".join(manifest.files[f][1] for f in files).encode()).digest()[:8]
 
 
