@@ -67,7 +67,9 @@ test('server mode: the page decodes a mogo serve\'s tokens to the Python client\
   const fetched = await page.evaluate(() => performance.getEntriesByType('resource').map((e) => e.name)
     .filter((u) => u.includes('/test-bundles/')).map((u) => u.split('/').pop()).sort());
   const manifest = JSON.parse(readFileSync(join(folder, 'manifest.json'), 'utf8'));
-  const graphs = ['lookup', 'decoder'].map((g) => manifest.variants[VARIANT][g].file);
+  const graphs = ['lookup', 'decoder', 'decoder_step'].filter((g) => Object.hasOwn(manifest.variants[VARIANT], g))
+    .map((g) => manifest.variants[VARIANT][g].file);
+  assert.equal(graphs.length, 3, 'the toy has a decoder_step graph: the page decodes with it');
   assert.deepEqual(fetched, ['manifest.json', ...graphs].sort(), 'the page fetched more than the decoder needs');
 
   await page.fill('#prompt', prompt);
