@@ -45,6 +45,8 @@ if TYPE_CHECKING:
 
 SWITCH_HISTORY = 10_000   # prompt switches kept per character, as FrameStream keeps them
 MEMORY_SHARE = 0.5        # of the memory available when a crowd is made, what its characters may take by default
+SCRATCH_SLACK = 8         # a rebuild's scratch cache is kept until it holds this many times the rows rebuilds need
+SCRATCH_CALLS = 64        # ... the most of the last this many rebuilds
 
 
 def available_memory() -> int:
@@ -126,7 +128,8 @@ class Crowd:
 
     `sampling`: one SamplingConfig for the crowd (default the bundle's). `chunk`: tokens per decode after the
     first, as `MotionGenerator.stream`'s. `max_characters`: how many it may hold; default what the memory available
-    now holds (`character_bytes` each, MEMORY_SHARE of it). One thread ticks a crowd at a time; `add`, `remove` and
+    now holds (`character_bytes` each, MEMORY_SHARE of it). Their step cache is reserved at once as address space;
+    memory is used as characters come. One thread ticks a crowd at a time; `add`, `remove` and
     `Character.set_prompt` from other threads wait for a running tick.
     """
 
@@ -144,6 +147,7 @@ class Crowd:
         self.policy = StepPolicy(sampling_or(gen.sampling_defaults, sampling), gen.dims)
         self.characters: list[Character] = []      # characters[i].slot == i owns rows [i * rows, (i + 1) * rows)
         self._spare = self.backend.empty_past(0).arrays
+        self._asked: deque[int] = deque(maxlen=SCRATCH_CALLS)    # rows of the last rebuilds' scratch
         self._next_id = 0
         self._lock = threading.Lock()
         # a character's rows, in the crowd's cache and in the scratch rows of a rebuild
@@ -154,7 +158,12 @@ class Crowd:
         # the cache of every row, for max_characters at once: zeros the system maps only as rows are first written,
         # so memory grows with the characters and adding one never copies the others' (growing by doubling
         # copied them: a 227-577 ms tick at the 128th character on base, and 192 characters late by 0.2 s)
-        self._cache = self.backend.empty_past(self.max_characters * self.policy.rows).arrays
+        try:
+            self._cache = self.backend.empty_past(self.max_characters * self.policy.rows).arrays
+        except MemoryError:    # a system that commits memory up front (vm.overcommit_memory = 2), or a tight ulimit
+            raise MemoryError(f"could not reserve the step cache of {self.max_characters} characters "
+                              f"({self.max_characters * self.character_bytes / 2 / 2 ** 30:.1f} GiB of address space, "
+                              f"used only as characters come): pass Crowd(..., max_characters=N) for fewer") from None
 
     def __len__(self) -> int:
         return len(self.characters)
@@ -287,9 +296,14 @@ class Crowd:
     def _scratch(self, rows: int) -> list[np.ndarray]:
         """Caches for `rows` rows that start a context: kept between ticks, as a fresh allocation of this size
         would fault in its pages every time. What earlier contexts left there is masked out of attention (a
-        context at position p reads slots 0..p only), so only finiteness matters: zeros at first."""
-        if len(self._spare[0]) < rows:
-            self._spare = self.backend.empty_past(rows).arrays
+        context at position p reads slots 0..p only), so only finiteness matters: zeros at first. Made again
+        for the most rows of the last SCRATCH_CALLS calls when it holds SCRATCH_SLACK times more: a restored crowd
+        resumes every context in one tick, and that scratch would stay resident (50 MB for 800 characters of the
+        tests' tiny model)."""
+        self._asked.append(rows)
+        need = max(self._asked)
+        if not rows <= len(self._spare[0]) <= SCRATCH_SLACK * need:
+            self._spare = self.backend.empty_past(need).arrays
         return [a[:rows] for a in self._spare]
 
     def _decode(self) -> dict[Character, Frames]:

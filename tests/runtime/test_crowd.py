@@ -177,3 +177,17 @@ def test_a_prompt_embedded_alone_is_kept_and_gives_the_same_bits(portable_toy_bu
     fresh = MotionGenerator(portable_toy_bundle, variant="fp32").backend.encode_text([PROMPTS[1]])
     assert np.array_equal(gen.backend.encode_text([PROMPTS[1]]), fresh)   # alone: a lone call's bits
     assert batch.shape == (2, fresh.shape[1])
+
+
+def test_a_rebuilds_scratch_cache_is_given_back_when_far_too_large(portable_toy_bundle):  # noqa: F811
+    """A restored crowd resumes every context in one tick (a scratch of all its rows); once the last 64 rebuilds
+    asked for 8 times fewer rows, the scratch is made again at their size, and rows are never short."""
+    from mogo_runtime.crowd import SCRATCH_CALLS, SCRATCH_SLACK
+
+    crowd = Crowd(MotionGenerator(portable_toy_bundle, variant="portable"))
+    assert len(crowd._scratch(800)[0]) == 800
+    for _ in range(SCRATCH_CALLS - 1):
+        assert len(crowd._scratch(10)[0]) == 10 and len(crowd._spare[0]) == 800    # 800 within the last calls
+    crowd._scratch(10)
+    assert len(crowd._spare[0]) == 10 < 800 / SCRATCH_SLACK
+    assert len(crowd._scratch(30)[0]) == 30 and len(crowd._scratch(12)[0]) == 12 and len(crowd._spare[0]) == 30

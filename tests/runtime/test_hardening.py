@@ -287,6 +287,10 @@ def test_a_crowd_is_bounded(portable_toy_bundle):  # noqa: F811
         "SC_PAGE_SIZE") and default.max_characters >= 1
     with pytest.raises(ValueError, match="max_characters"):
         Crowd(gen, max_characters=0)
+    # the step cache is reserved up front (address space, used as characters come): more than the system can map
+    # is refused at once, naming the bound
+    with pytest.raises(MemoryError, match=r"could not reserve the step cache .* max_characters=N"):
+        Crowd(gen, max_characters=10 ** 12)
 
 
 # ------------------------------------------------------------------------------------------- threads
