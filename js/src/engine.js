@@ -49,18 +49,28 @@ export class MotionDecoder {
   }
 
   async #decode(tokens, batch) {
+    const { features } = await runGraph(this, 'decoder', { latent: await this.#lookup(tokens, batch) });
+    return this.#features('decoder', tokens, batch, features);
+  }
+
+  /** The codebook lookup: tokens (B, T, L) -> the decoders' input, a float32 tensor (B, T, latent_dim). */
+  async #lookup(tokens, batch) {
     const L = this.dims.numLevels;
     const ids = new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [batch, tokens.length / (batch * L), L]);
     const { latent } = await runGraph(this, 'lookup', { tokens: ids });
     finite(this, 'lookup', latent.data);
-    const { features } = await runGraph(this, 'decoder', { latent });
-    const T = tokens.length / (batch * L), want = [batch, T * this.dims.downsample, this.dims.featureDim];
+    return latent;
+  }
+
+  /** A decoder graph's output tensor for `tokens` (B, T, L), checked: (B, T * ds, D) flat, finite. */
+  #features(graph, tokens, batch, features) {
+    const T = tokens.length / (batch * this.dims.numLevels), want = [batch, T * this.dims.downsample, this.dims.featureDim];
     if (!sameDims(features.dims, want)) {   // a wrong model.downsample would drop or invent frames
-      throw new BundleError(`${graphFile(this, 'decoder')}: decoded ${T} tokens to `
+      throw new BundleError(`${graphFile(this, graph)}: decoded ${T} tokens to `
         + `[${features.dims.slice(1)}] frames x features; manifest model.downsample ${this.dims.downsample} and `
         + `model.feature_dim ${this.dims.featureDim} promise [${want.slice(1)}]`);
     }
-    return finite(this, 'decoder', features.data);
+    return finite(this, graph, features.data);
   }
 
   /**
@@ -73,22 +83,12 @@ export class MotionDecoder {
       for (let r = 0; r < batch; r++) rows.push(await this.decodeStep(rowOf(tokens, batch, r), 1, state.map((s) => rowOf(s, batch, r))));
       return { features: concat(rows.map((o) => o.features)), state: state.map((_, i) => concat(rows.map((o) => o.state[i]))) };
     }
-    const L = this.dims.numLevels, T = tokens.length / (batch * L);
-    const ids = new this.ort.Tensor('int64', BigInt64Array.from(tokens, BigInt), [batch, T, L]);
-    const { latent } = await runGraph(this, 'lookup', { tokens: ids });
-    finite(this, 'lookup', latent.data);
-    const feed = { latent };
+    const feed = { latent: await this.#lookup(tokens, batch) };
     this.decoderState.forEach(([reach, channels], i) => {
       feed[`decoder_state.${i}`] = new this.ort.Tensor('float32', state[i], [batch, reach, channels]);
     });
     const out = await runGraph(this, 'decoder_step', feed);
-    const { features } = out, want = [batch, T * this.dims.downsample, this.dims.featureDim];
-    if (!sameDims(features.dims, want)) {
-      throw new BundleError(`${graphFile(this, 'decoder_step')}: decoded ${T} tokens to `
-        + `[${features.dims.slice(1)}] frames x features; manifest model.downsample ${this.dims.downsample} and `
-        + `model.feature_dim ${this.dims.featureDim} promise [${want.slice(1)}]`);
-    }
-    return { features: finite(this, 'decoder_step', features.data),
+    return { features: this.#features('decoder_step', tokens, batch, out.features),
       state: this.decoderState.map((_, i) => out[`next_decoder_state.${i}`].data) };
   }
 

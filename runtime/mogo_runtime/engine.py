@@ -72,12 +72,16 @@ class MotionDecoder:
 
     def _decode(self, tokens: np.ndarray) -> np.ndarray:
         (features,) = self._run("decoder", self.decoder_session.run, ["features"], {"latent": self.lookup(tokens)})
+        return self._features("decoder", tokens, features)
+
+    def _features(self, graph: str, tokens: np.ndarray, features: np.ndarray) -> np.ndarray:
+        """A decoder graph's output for `tokens` (B, T, L), checked: (B, T * downsample, D), finite."""
         want = (len(tokens), tokens.shape[1] * self.dims.downsample, self.dims.feature_dim)
         if features.shape != want:   # a wrong model.downsample would otherwise drop or invent frames silently
-            raise BundleError(f"{self.bundle.graph_path('decoder', self.variant)}: decoded {tokens.shape[1]} tokens "
+            raise BundleError(f"{self.bundle.graph_path(graph, self.variant)}: decoded {tokens.shape[1]} tokens "
                               f"to {features.shape[1:]} frames x features; manifest model.downsample "
                               f"{self.dims.downsample} and model.feature_dim {self.dims.feature_dim} promise {want[1:]}")
-        return self._finite("decoder", features)                                # (B, T * downsample, D)
+        return self._finite(graph, features)
 
     def decode_step(self, tokens: np.ndarray, state: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
         """Streams' next tokens (B, T, L) from their decoder state (each (B, reach, channels); zeros at a motion's
@@ -91,12 +95,7 @@ class MotionDecoder:
         feed = {"latent": self.lookup(tokens), **{DECODER_STATE[0].format(i): np.ascontiguousarray(s, np.float32)
                                                   for i, s in enumerate(state)}}
         features, *nxt = self._run("decoder_step", self.decoder_step_session.run, None, feed)
-        want = (len(tokens), tokens.shape[1] * self.dims.downsample, self.dims.feature_dim)
-        if features.shape != want:
-            raise BundleError(f"{self.bundle.graph_path('decoder_step', self.variant)}: decoded {tokens.shape[1]} "
-                              f"tokens to {features.shape[1:]} frames x features; manifest model.downsample "
-                              f"{self.dims.downsample} and model.feature_dim {self.dims.feature_dim} promise {want[1:]}")
-        return self._finite("decoder_step", features), nxt
+        return self._features("decoder_step", tokens, features), nxt
 
     def _run(self, graph: str, run, *args):
         """`run(*args)` of `graph`'s session; onnxruntime refusing to finish it (an output it cannot allocate, shapes

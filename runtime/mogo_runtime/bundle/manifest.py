@@ -14,9 +14,9 @@ from ..checks import Fields, kind, shown
 from ..kinematics.features import FeatureLayout
 from ..kinematics.skeleton import SKELETONS, Skeleton
 from .sampling import SamplingConfig
-from .sections import (GRAPHS, NORMALIZATION, OPTIONAL_GRAPHS, PER_ROW_INT8, WEIGHT_INT8, BundleError, CacheNames, ControlSpec,
-                       GraphFile, GraphSpec, ModelDims, Normalization, OrtFormat, PortableSpec, StreamingSpec,
-                       TcaSpec, TextEncoderSpec, parse_files, parse_sampling, parse_variants)
+from .sections import (NORMALIZATION, PER_ROW_INT8, WEIGHT_INT8, BundleError, CacheNames, ControlSpec, GraphFile,
+                       GraphSpec, ModelDims, Normalization, OrtFormat, PortableSpec, StreamingSpec, TcaSpec,
+                       TextEncoderSpec, parse_files, parse_sampling, parse_variants, present_graphs)
 
 SCHEMA = "mogo-bundle"
 # 2: cache-name templates; `normalization` always an object; text_encoder numbers stored as numbers.
@@ -72,7 +72,7 @@ class Manifest:
     @property
     def graph_names(self) -> tuple[str, ...]:
         """The graphs this bundle has (in every variant): GRAPHS, and the optional ones it has."""
-        return GRAPHS + tuple(g for g in OPTIONAL_GRAPHS if g in self.graphs)
+        return present_graphs(self.graphs)
 
     @property
     def decoder_state(self) -> tuple[tuple[int, int], ...] | None:
@@ -140,8 +140,7 @@ class Manifest:
                    text_encoder=TextEncoderSpec.parse(f.sub("text_encoder")),
                    sampling_defaults=parse_sampling(f.sub("sampling_defaults")),
                    cache=CacheNames.parse(f.sub("cache")), producer=producer, files=parse_files(f.sub("files")),
-                   graphs={g: GraphSpec.parse(f.sub("graphs").sub(g)) for g in GRAPHS + tuple(
-                       g for g in OPTIONAL_GRAPHS if isinstance(f.get("graphs"), dict) and g in f.get("graphs"))},
+                   graphs={g: GraphSpec.parse(f.sub("graphs").sub(g)) for g in present_graphs(f.get("graphs"))},
                    variants=parse_variants(f.sub("variants")), streaming=streaming,
                    **{k: None if f.get(k, None) is None else parse(f.sub(k)) for k, parse in optional.items()}
                    ).checked(where)

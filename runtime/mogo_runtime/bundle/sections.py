@@ -15,6 +15,12 @@ GRAPHS = ("text_encoder", "step", "lookup", "decoder")     # every bundle's
 # graphs a bundle may have, in every variant or none: the decoder with its causal state explicit (docs/bundle.md)
 OPTIONAL_GRAPHS = ("decoder_step",)
 DECODING_GRAPHS = ("lookup", "decoder", "decoder_step")    # tokens -> frames: all a decode-only client opens
+
+
+def present_graphs(obj) -> tuple[str, ...]:
+    """The graphs a `graphs` (or variant) object names: GRAPHS, and the optional ones it has."""
+    return GRAPHS + tuple(g for g in OPTIONAL_GRAPHS if isinstance(obj, dict) and g in obj)
+
 DTYPES = {"float32": "tensor(float)", "int64": "tensor(int64)", "float16": "tensor(float16)"}  # -> onnxruntime
 PER_ROW_INT8 = "mogo.per_row_dynamic"   # int8 with one activation scale per row (export/rowquant.py): batchable
 WEIGHT_INT8 = "mogo.weight_only_int8"   # int8 weights turned back to float32 in the graph, float32 arithmetic
@@ -369,7 +375,7 @@ def parse_variants(f: Fields) -> dict[str, dict[str, GraphFile]]:
     for v in f.obj:
         graphs = f.sub(v)
         entries = {}
-        for g in GRAPHS + tuple(g for g in OPTIONAL_GRAPHS if isinstance(graphs.obj, dict) and g in graphs.obj):
+        for g in present_graphs(graphs.obj):
             e = graphs.sub(g)
             q = e.get("quantization", None)
             if q is not None and not isinstance(q, dict):
