@@ -64,7 +64,13 @@ CROWD = [(PROMPTS[0], 1, 0, None, (9, PROMPTS[6]), None), (PROMPTS[1], 2, 0, 6.0
          (PROMPTS[5], 3, 3, None, None, 40), (PROMPTS[4], 7, 5, 4.0, None, None),
          (PROMPTS[6], 11, 2, None, (17, PROMPTS[1]), None), (PROMPTS[0], 2 ** 63 - 1, 1, None, None, None)]
 CROWD_TICKS = 90
-SECTIONS = ("clips", "variants", "batches", "endless", "crowds", "files")
+SECTIONS = ("clips", "variants", "batches", "endless", "crowds", "control", "files")
+# steered characters (bundles with control): (request, tick it is made at); requests made on a crowd's character or
+# on a stream at its frame's token
+CONTROL = [("follow_path", ([(0.0, 0.0), (2.0, 1.0), (5.0, 1.0), (5.0, -3.0)], 1.3), 0),
+           ("walk_to", ((4.0, 2.0), 1.0), 0), ("steer", ((0.0, 1.4), (1.0, 0.0)), 1),
+           ("walk_to", ((-3.0, -2.0), 2.5), 2), ("set_root", None, 0), ("follow_path", ([(0.0, 0.0), (0.0, 3.0)], 0.8), 4)]
+CONTROL_TICKS = 70
 
 
 def _generate(gen, text, seed: int, greedy: bool, align: bool):
@@ -199,6 +205,59 @@ def crowds(bundle: str, out: dict) -> None:
             assert rc == 0, f"mogo crowd failed ({rc})"
             for f in sorted(Path(tmp).iterdir()):
                 out[f"crowds/{variant}/cli/{f.name}"] = np.frombuffer(f.read_bytes(), np.uint8)
+
+
+def _request(character, request, tick: int) -> None:
+    name, args = request
+    if name == "set_root":      # a game moving the capsule on a circle, placing it every tick
+        a = 0.05 * tick
+        character.set_root(2.0 * np.sin(a), 2.0 - 2.0 * np.cos(a), a + np.pi / 2)
+    else:
+        getattr(character, name)(*args)
+
+
+def control(bundle: str, out: dict) -> None:
+    """Steered characters in crowds (every fixed-capacity variant, chunk 4 and 1) and in streams (fp32, int8): paths,
+    goals, a joystick with strafing, a game-owned root, a release, a prompt switch under control."""
+    from mogo_runtime import MotionGenerator
+    from mogo_runtime.crowd import Crowd
+
+    for variant in ("fp32", "int8", *_fixed(bundle)):
+        gen = MotionGenerator(bundle, variant=variant, threads=1)
+        if gen.backend.control is None:
+            return
+        if variant in _fixed(bundle):
+            for chunk in (4, 1):
+                crowd = Crowd(gen, chunk=chunk)
+                chars = [crowd.add(PROMPTS[0] if i % 3 else PROMPTS[9], seed=i) for i in range(len(CONTROL))]
+                parts: dict[int, list] = {i: [] for i in range(len(chars))}
+                for t in range(CONTROL_TICKS):
+                    for i, (c, (name, args), start) in enumerate(zip(chars, [r[:2] for r in CONTROL],
+                                                                   [r[2] for r in CONTROL])):
+                        if t == start or (name == "set_root" and t > start):
+                            _request(c, (name, args), t)
+                    if t == 40:
+                        chars[1].set_prompt(PROMPTS[1])
+                        chars[2].release()
+                    for c, frames in crowd.tick().items():
+                        parts[chars.index(c)].append((frames.index, frames.features, frames.joints))
+                for i, p in parts.items():
+                    key = f"control/{variant}/crowd/c{chunk}/{i}"
+                    out[key + "/index"] = np.array([index for index, _, _ in p], np.int64)
+                    out[key + "/features"] = np.concatenate([f for _, f, _ in p])
+                    out[key + "/joints"] = np.concatenate([j for _, _, j in p])
+        for i, (request, _) in enumerate(zip(CONTROL[:4], range(4))):
+            stream = gen.stream(PROMPTS[0], seed=i)
+            _request(stream, request[:2], 0)
+            features, joints = [], []
+            for frame in stream:
+                features.append(frame.features)
+                joints.append(frame.joints)
+                if len(joints) == STREAM_FRAMES:
+                    break
+            stream.close()
+            key = f"control/{variant}/stream/{i}"
+            out[key + "/features"], out[key + "/joints"] = np.stack(features), np.stack(joints)
 
 
 def files(bundle: str, out: dict) -> None:

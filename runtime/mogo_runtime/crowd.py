@@ -321,8 +321,8 @@ class Crowd:
         out = {}
         for n, chars in groups.items():
             features = decode_due(self.backend, [c.frames for c in chars], n)
-            for c, f in zip(chars, features):
-                out[c] = c.frames.frames_from(f)
+            for c, frames in zip(chars, FrameMaker.frames_many([c.frames for c in chars], features)):
+                out[c] = frames
                 if c.steering is not None:
                     c.steering.update(out[c].index + len(out[c].joints), c.frames.joints)
                     out[c].joints = c.steering.place(out[c].index, out[c].joints)

@@ -160,12 +160,27 @@ class FrameMaker:
 
     def frames_from(self, features: np.ndarray, clock: StageClock = NO_CLOCK) -> Frames:
         """The decoder's features for the n tokens due (`decode_due`) -> the new frames (the pending tokens')."""
-        features = features[len(features) - self.pending * self.dims.downsample:]
-        with clock("joints"):
-            frames = Frames(self.frames, features, self.joints.push(features))
-        self.frames += len(features)
-        self.pending = 0
-        return frames
+        return FrameMaker.frames_many([self], features[None], clock)[0]
+
+    @staticmethod
+    def frames_many(makers: list["FrameMaker"], features: np.ndarray, clock: StageClock = NO_CLOCK) -> list[Frames]:
+        """`frames_from` for many streams at once (decode_due's features (B, n * downsample, D)), their joints in
+        one batch per number of pending tokens: the same numbers as one by one."""
+        out: list[Frames | None] = [None] * len(makers)
+        ds = makers[0].dims.downsample
+        groups: dict[int, list[int]] = {}
+        for b, m in enumerate(makers):
+            groups.setdefault(m.pending, []).append(b)
+        for pending, members in groups.items():
+            new = features[members, features.shape[1] - pending * ds:]
+            with clock("joints"):
+                joints = FrameJoints.push_many([makers[b].joints for b in members], new)
+            for k, b in enumerate(members):
+                m = makers[b]
+                out[b] = Frames(m.frames, new[k], joints[k])
+                m.frames += len(new[k])
+                m.pending = 0
+        return out
 
 
 def decode_due(decoder: Backend, makers: list[FrameMaker], n: int) -> np.ndarray:

@@ -92,6 +92,45 @@ def test_top_k_one_and_tiny_top_p_are_greedy():
     assert np.array_equal(sample(logits, SamplingConfig(temperature=1.5, top_p=1e-6), rngs_for(0, 4)), greedy)
 
 
+def _sample_stably(logits, config, rngs):
+    """sample() as it was written first: one stable sort of the tempered logits (the JavaScript runtime's order)."""
+    B, L, V = logits.shape
+    z = logits.astype(np.float64) / config.temperature
+    order = np.argsort(-z, axis=-1, kind="stable")
+    z_sorted = np.take_along_axis(z, order, axis=-1)
+    if config.top_k is not None and config.top_k < V:
+        z_sorted[..., config.top_k:] = -np.inf
+    probs = np.exp(z_sorted - z_sorted[..., :1])
+    probs /= probs.sum(-1, keepdims=True)
+    if config.top_p is not None and config.top_p < 1.0:
+        mass_before = np.cumsum(probs, axis=-1) - probs
+        probs = np.where(mass_before < config.top_p, probs, 0.0)
+        probs /= probs.sum(-1, keepdims=True)
+    cdf = np.cumsum(probs, axis=-1)
+    u = np.stack([rng.random(L) for rng in rngs])[..., None]
+    pick = np.minimum((cdf < u * cdf[..., -1:]).sum(-1), V - 1)
+    return np.take_along_axis(order, pick[..., None], axis=-1)[..., 0]
+
+
+def test_sampling_picks_what_one_stable_sort_picks_ties_included():
+    # sample() sorts unstably and sorts tied rows again: its tokens must be the stable sort's, ties broken by code
+    rng = np.random.default_rng(3)
+    configs = (SamplingConfig(top_p=0.8), SamplingConfig(temperature=0.7, top_k=20), SamplingConfig(temperature=0.37))
+    cases = [rng.normal(size=(6, 4, 513)).astype(np.float32),                # no ties
+             rng.integers(-3, 3, size=(6, 4, 40)).astype(np.float32),         # ties everywhere
+             (np.round(rng.normal(size=(6, 4, 300)) * 20) / 7).astype(np.float32),   # a few ties
+             np.nextafter(np.ones((6, 4, 30)), 2) ** np.arange(30)]           # float64 logits 1 ulp apart
+    cases[0][:, 1:, 0] = -np.inf
+    ties = 0
+    for logits in cases:
+        for config in configs:
+            for seed in range(5):
+                got = sample(logits, config, rngs_for(seed, 6))
+                assert np.array_equal(got, _sample_stably(logits, config, rngs_for(seed, 6))), (logits.dtype, config)
+        ties += int((np.diff(np.sort(logits, -1), axis=-1) == 0).any())
+    assert ties >= 2       # the cases hold tied rows, or the re-sort would go untested
+
+
 def test_sampling_follows_the_distribution():
     logits = np.log(np.array([[[0.7, 0.2, 0.1]]], np.float32))
     rngs = rngs_for(0, 1)

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from mogo_runtime.kinematics.features import recover_from_ric
-from mogo_runtime.kinematics.frames import FootLock, RootIntegrator
+from mogo_runtime.kinematics.frames import FootLock, FrameJoints, RootIntegrator
 from mogo_runtime.kinematics.skeleton import HUMANML3D
 from mogo_runtime.outputs.motion import SAVE_FORMATS, Motion, OutputError, check_output_path
 
@@ -45,6 +45,28 @@ def test_integrator_follows_a_turning_root():
     integ = RootIntegrator(HUMANML3D)
     got = np.concatenate([integ.push(feats[i:i + 4]) for i in range(0, 60, 4)])
     assert np.abs(got - recover_from_ric(feats, 22)).max() < 1e-9
+
+
+def test_many_streams_at_once_get_the_joints_each_gets_alone(humanml3d_fixture):
+    # a crowd makes its characters' joints in one batch: each must be what its stream alone makes, bit for bit,
+    # whatever its state (streams started at different frames, some with a held toe, one not started)
+    feats = np.load(humanml3d_fixture / "new_joint_vecs" / "012314.npy")         # (170, 263) float32
+    starts = [0, 13, 57, 101, 150]
+    alone = [FrameJoints(HUMANML3D) for _ in starts]
+    together = [FrameJoints(HUMANML3D) for _ in starts]
+    for s, a, t in zip(starts, alone, together):
+        if s:
+            a.push(feats[:s])
+            t.push(feats[:s])
+    for step, n in enumerate((1, 4, 3, 4)):
+        at = [s + sum((1, 4, 3, 4)[:step]) for s in starts]
+        batch = np.stack([feats[i:i + n] for i in at])
+        got = FrameJoints.push_many(together, batch)
+        for b, (i, a) in enumerate(zip(at, alone)):
+            want = a.push(feats[i:i + n])
+            assert got[b].dtype == want.dtype and np.array_equal(got[b], want), (step, b)
+    for a, t in zip(alone, together):
+        assert np.array_equal(a.next_pose(), t.next_pose())
 
 
 def test_integrator_rejects_wrong_width():

@@ -43,10 +43,13 @@ def to_world(now: np.ndarray, local: np.ndarray) -> np.ndarray:
 def encode(now: np.ndarray, future: np.ndarray) -> np.ndarray:
     """Root pose now (3,) and the wanted poses (horizon, 3) one token apart -> the control vector (float32)."""
     now, future = np.asarray(now, np.float64), np.asarray(future, np.float64)
-    xz = to_local(now, future[:, :2])
+    out = np.empty(1 + FIELDS * len(future))
+    out[0] = 1.0
+    per_step = out[1:].reshape(-1, FIELDS)
+    per_step[:, :2] = to_local(now, future[:, :2])
     turn = future[:, 2] - now[2]
-    per_step = np.stack([xz[:, 0], xz[:, 1], np.sin(turn), np.cos(turn)], axis=1)    # (horizon, FIELDS)
-    return np.concatenate([[1.0], per_step.ravel()]).astype(np.float32)
+    per_step[:, 2], per_step[:, 3] = np.sin(turn), np.cos(turn)
+    return out.astype(np.float32)
 
 
 def decode(now: np.ndarray, vector: np.ndarray) -> np.ndarray:

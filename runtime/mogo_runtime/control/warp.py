@@ -116,8 +116,10 @@ class RootWarp:
         if not self.active:
             return joints
         out = np.array(joints, np.float64)
-        for i in range(len(out)):
-            phi, tx, tz = self._warp(index + i)
-            x, z = turned(phi, out[i, :, 0], out[i, :, 2])
-            out[i, :, 0], out[i, :, 2] = x + tx, z + tz
+        phi, tx, tz = np.array([self._warp(index + i) for i in range(len(out))]).reshape(-1, 3, 1).transpose(1, 0, 2)
+        c = np.array([math.cos(a) for a in phi[:, 0]])[:, None]
+        s = np.array([math.sin(a) for a in phi[:, 0]])[:, None]
+        x, z = out[:, :, 0], out[:, :, 2]
+        # turned(phi, x, z) frame by frame, the same products and sums
+        out[:, :, 0], out[:, :, 2] = c * x + s * z + tx, -s * x + c * z + tz
         return out.astype(joints.dtype)

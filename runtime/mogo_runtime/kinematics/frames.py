@@ -32,23 +32,42 @@ class RootIntegrator:
         x = np.asarray(features)
         if x.ndim != 2 or x.shape[1] != self.layout.dim:
             raise ValueError(f"RootIntegrator.push wants (n, {self.layout.dim}) features, got {x.shape}")
+        return RootIntegrator.push_many([self], x[None])[0]
+
+    @staticmethod
+    def push_many(roots: list["RootIntegrator"], features: np.ndarray) -> np.ndarray:
+        """`push` for many streams at once, the same numbers: features (B, n, D), stream b's next n frames ->
+        joints (B, n, J, 3). Elementwise arithmetic only, in push's order, so a stream's joints do not depend on
+        the batch it is in (its cos and sin too: numpy's float64 sin and cos gave libm's bits at every array length
+        and offset tried, 200,000 values)."""
+        x = np.asarray(features)
         out_dtype = x.dtype if x.dtype.kind == "f" else np.float32
         x64 = x.astype(np.float64)
-        J = self.num_joints
-        joints = np.empty((len(x), J, 3))
-        for i, frame in enumerate(x64):
-            rot_vel, vx, vz = self.previous
-            self.angle += rot_vel
-            c, s = np.cos(self.angle), np.sin(self.angle)
+        B, n = x64.shape[:2]
+        J = roots[0].num_joints
+        angle = np.array([r.angle for r in roots], np.float64)
+        position = np.stack([r.position for r in roots])                  # (B, 2)
+        previous = np.stack([r.previous for r in roots])                  # (B, 3): the frame before each
+        velocity = np.concatenate([previous[:, None], x64[:, :-1, :3]], axis=1)    # (B, n, 3) moving frame i
+        cos2, sin2, pos = np.empty((B, n)), np.empty((B, n)), np.empty((B, n, 2))
+        for i in range(n):      # a running sum: frame i's heading and position add to frame i - 1's
+            rot_vel, vx, vz = velocity[:, i, 0], velocity[:, i, 1], velocity[:, i, 2]
+            angle = angle + rot_vel
+            c, s = np.cos(angle), np.sin(angle)
             # qrot(qinv(q(angle)), v) for v = (vx, 0, vz): a rotation by -2*angle about y
-            cos2, sin2 = c * c - s * s, 2 * c * s
-            self.position += (cos2 * vx - sin2 * vz, sin2 * vx + cos2 * vz)
-            ric = frame[4:4 + (J - 1) * 3].reshape(J - 1, 3)
-            joints[i, 0] = (self.position[0], frame[3], self.position[1])
-            joints[i, 1:, 0] = cos2 * ric[:, 0] - sin2 * ric[:, 2] + self.position[0]
-            joints[i, 1:, 1] = ric[:, 1]
-            joints[i, 1:, 2] = sin2 * ric[:, 0] + cos2 * ric[:, 2] + self.position[1]
-            self.previous = frame[:3].copy()
+            cos2[:, i], sin2[:, i] = c * c - s * s, 2 * c * s
+            position = position + np.stack([cos2[:, i] * vx - sin2[:, i] * vz, sin2[:, i] * vx + cos2[:, i] * vz], 1)
+            pos[:, i] = position
+        ric = x64[:, :, 4:4 + (J - 1) * 3].reshape(B, n, J - 1, 3)
+        joints = np.empty((B, n, J, 3))
+        joints[:, :, 0, 0], joints[:, :, 0, 1], joints[:, :, 0, 2] = pos[..., 0], x64[:, :, 3], pos[..., 1]
+        c2, s2 = cos2[..., None], sin2[..., None]
+        joints[:, :, 1:, 0] = c2 * ric[..., 0] - s2 * ric[..., 2] + pos[..., :1]
+        joints[:, :, 1:, 1] = ric[..., 1]
+        joints[:, :, 1:, 2] = s2 * ric[..., 0] + c2 * ric[..., 2] + pos[..., 1:]
+        for b, r in enumerate(roots):
+            if n:
+                r.angle, r.position, r.previous = angle[b], position[b].copy(), x64[b, -1, :3].copy()
         return joints.astype(out_dtype)
 
     def next_pose(self) -> np.ndarray:
@@ -94,19 +113,28 @@ class FootLock:
         """joints (n, J, 3) float32 and their features (n, D) -> the locked joints (n, J, 3) float32."""
         if not len(joints):
             return np.asarray(joints, np.float32)
+        return FootLock.push_many([self], np.asarray(joints)[None], np.asarray(features)[None])[0]
+
+    @staticmethod
+    def push_many(locks: list["FootLock"], joints: np.ndarray, features: np.ndarray) -> np.ndarray:
+        """`push` for many streams at once, the same numbers: joints (B, n, J, 3), features (B, n, D), n >= 1."""
+        first = locks[0]
         j = np.asarray(joints, np.float64)
-        toe = j[:, self.toes][..., [0, 2]]                                      # (n, 2 toes, xz)
-        contact = np.asarray(features)[:, self.channels] > self.CONTACT         # (n, 2)
-        prev_toe, prev_contact = self.previous if self.previous is not None else (toe[0], np.zeros(2, bool))
-        slide = np.diff(np.concatenate([prev_toe[None], toe]), axis=0)          # (n, 2, 2)
-        held = np.concatenate([prev_contact[None], contact])[:-1] & contact     # (n, 2)
-        count = held.sum(1, keepdims=True)
-        shift = np.where(count > 0, (slide * held[..., None]).sum(1) / np.maximum(count, 1), 0.0)   # (n, 2)
+        toe = j[:, :, first.toes][..., [0, 2]]                                   # (B, n, 2 toes, xz)
+        contact = np.asarray(features)[:, :, first.channels] > first.CONTACT     # (B, n, 2)
+        prev_toe = np.stack([k.previous[0] if k.previous is not None else toe[b, 0] for b, k in enumerate(locks)])
+        prev_contact = np.stack([k.previous[1] if k.previous is not None else np.zeros(2, bool) for k in locks])
+        slide = np.diff(np.concatenate([prev_toe[:, None], toe], axis=1), axis=1)    # (B, n, 2, 2)
+        held = np.concatenate([prev_contact[:, None], contact], axis=1)[:, :-1] & contact   # (B, n, 2)
+        count = held.sum(2, keepdims=True)
+        shift = np.where(count > 0, (slide * held[..., None]).sum(2) / np.maximum(count, 1), 0.0)   # (B, n, 2)
         # a running subtraction from the carried offset (cumsum is sequential), so chunking changes nothing
-        offsets = np.cumsum(np.concatenate([self.offset[None], -shift]), axis=0)[1:]
-        self.offset, self.previous = offsets[-1].copy(), (toe[-1].copy(), contact[-1].copy())
-        j[..., 0] += offsets[:, None, 0]
-        j[..., 2] += offsets[:, None, 1]
+        offset = np.stack([k.offset for k in locks])
+        offsets = np.cumsum(np.concatenate([offset[:, None], -shift], axis=1), axis=1)[:, 1:]
+        for b, k in enumerate(locks):
+            k.offset, k.previous = offsets[b, -1].copy(), (toe[b, -1].copy(), contact[b, -1].copy())
+        j[..., 0] += offsets[..., None, 0]
+        j[..., 2] += offsets[..., None, 1]
         return j.astype(np.float32)
 
 
@@ -120,6 +148,13 @@ class FrameJoints:
     def push(self, features: np.ndarray) -> np.ndarray:
         """features (n, D) of the next n frames -> joints (n, J, 3) float32."""
         return self.lock.push(self.root.push(features), features)
+
+    @staticmethod
+    def push_many(streams: list["FrameJoints"], features: np.ndarray) -> np.ndarray:
+        """`push` for many streams at once (a crowd's), the same numbers: features (B, n, D), n >= 1 ->
+        joints (B, n, J, 3) float32."""
+        joints = RootIntegrator.push_many([s.root for s in streams], features)
+        return FootLock.push_many([s.lock for s in streams], joints, features)
 
     def next_pose(self) -> np.ndarray:
         """The root pose (x, z, yaw) of the next frame, where the frames so far put it (the lock's offset too)."""
