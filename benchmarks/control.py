@@ -229,37 +229,60 @@ def text_rules(gen, n: int, seed: int, data: Path, classifier: Path) -> dict:
             "confusions": sorted({f"{t}->{p}" for t, p in zip(truth, pred) if t != p})[:20]}
 
 
-ROUND = 8      # ticks timed together in the cost section
+ROUND = 8           # ticks timed together in the cost section (two chunks of 4)
+FRESH = (8, 48)     # ticks of the cost section's first phase: every context shorter than window + refresh
+STEADY = 100        # the tick its second phase starts at: characters that have not ended rebuild their contexts
 
 
 def cost(bundle: str, characters: int, ticks: int, seed: int) -> dict:
+    """Per character-token time of a crowd walking paths against the same crowd without control, in two phases:
+    `fresh` (no context long enough to be rebuilt yet) and `steady` (`ticks` ticks from tick STEADY on). Timed in
+    rounds of whole decode periods: at chunk 4 three ticks in four decode nothing, so a median tick (as this
+    measured before) left the decode out of the uncontrolled crowd's cost. Step rows per tick are counted: a
+    character that does not end its motion rebuilds its context every `refresh` tokens (window + 1 rows)."""
     from mogo_runtime import MotionGenerator
     from mogo_runtime.crowd import Crowd
 
     gen = MotionGenerator(bundle, variant="int8_fixed", threads=1)
     rng = np.random.default_rng([seed, 5])
-    out = {}
+    out: dict = {}
     for name, chunk, controlled in (("free_chunk4", 4, False), ("free_chunk1", 1, False), ("controlled", 4, True)):
         crowd = Crowd(gen, chunk=chunk)
+        rows: list[int] = []
+        step = crowd.backend.step_in_place
+
+        def counted(emb, *args):
+            rows.append(len(emb))
+            return step(emb, *args)
+        crowd.backend.step_in_place = counted
         for c in range(characters):
             ch = crowd.add(WALK, seed=c)
             if controlled:
-                ch.follow_path(smooth_path(rng, 1.3, 60.0), speed=1.3)
-        for _ in range(8):                           # warm: every context built, allocations made
+                ch.follow_path(smooth_path(rng, 1.3, 120.0), speed=1.3)
+
+        def timed(n: int) -> dict:
+            rows.clear()
+            rounds = []
+            for _ in range(max(1, n // ROUND)):
+                t = time.perf_counter()
+                for _ in range(ROUND):
+                    crowd.tick()
+                rounds.append(time.perf_counter() - t)
+            return {"per_character_token_ms": 1e3 * float(np.median(rounds)) / ROUND / characters,
+                    "step_rows_per_character_token": sum(rows) / (len(rounds) * ROUND * characters)}
+        for _ in range(FRESH[0]):                   # warm: every context built, allocations made
             crowd.tick()
-        # rounds of whole decode periods (8 ticks: two chunks of 4): at chunk 4 three ticks in four decode nothing,
-        # so the median tick (as this measured before) left the decode out of the uncontrolled crowd's cost
-        rounds = []
-        for _ in range(max(1, ticks // ROUND)):
-            t = time.perf_counter()
-            for _ in range(ROUND):
-                crowd.tick()
-            rounds.append(time.perf_counter() - t)
-        out[name] = {"per_character_token_ms": 1e3 * float(np.median(rounds)) / ROUND / characters}
-    base = out["free_chunk4"]["per_character_token_ms"]
-    out["controlled_over_free"] = out["controlled"]["per_character_token_ms"] / base
-    out["controlled_over_free_chunk1"] = (out["controlled"]["per_character_token_ms"]
-                                          / out["free_chunk1"]["per_character_token_ms"])
+        fresh = timed(FRESH[1] - FRESH[0])
+        for _ in range(STEADY - FRESH[1]):
+            crowd.tick()
+        out[name] = {"fresh": fresh, "steady": timed(ticks),
+                     "restarts_per_character_minute": sum(c.restarts for c in crowd.characters) / characters
+                     / ((STEADY + ticks) * gen.dims.downsample / gen.dims.fps / 60)}
+        del crowd.backend.step_in_place             # the generator's backend, shared by the next crowd
+    for phase in ("fresh", "steady"):
+        ms = {name: out[name][phase]["per_character_token_ms"] for name in ("free_chunk4", "free_chunk1", "controlled")}
+        out[f"controlled_over_free_{phase}"] = ms["controlled"] / ms["free_chunk4"]
+        out[f"controlled_over_free_chunk1_{phase}"] = ms["controlled"] / ms["free_chunk1"]
     return {"characters": characters, "ticks": ticks, **out}
 
 
@@ -277,7 +300,7 @@ def main(argv=None) -> int:
     ap.add_argument("--game-root", type=int, default=20)
     ap.add_argument("--text", type=int, default=40)
     ap.add_argument("--crowd", type=int, default=64)
-    ap.add_argument("--ticks", type=int, default=160, help="ticks timed per crowd in the cost section")
+    ap.add_argument("--ticks", type=int, default=160, help="ticks timed per crowd in the cost section's steady phase")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--sections", default="paths,waypoints,game_root,feet,text,cost")
     ap.add_argument("--json", type=Path, default=Path("outputs/control.json"))

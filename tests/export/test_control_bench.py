@@ -66,4 +66,6 @@ def test_the_benchmark_runs_on_the_tiny_bundle(tiny_bundle, tmp_path):
     assert 0 <= report["waypoints"]["reached"] <= 1
     assert report["game_root"]["root_to_capsule_m"]["max"] < 0.05      # the capsule places the root: by construction
     assert report["feet"]["skating_data"] >= 0 and report["feet"]["data_path_sequences"] >= 1
-    assert report["cost"]["controlled"]["per_character_token_ms"] > 0
+    for phase in ("fresh", "steady"):
+        assert report["cost"]["controlled"][phase]["per_character_token_ms"] > 0
+        assert report["cost"]["controlled"][phase]["step_rows_per_character_token"] >= 1
