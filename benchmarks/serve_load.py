@@ -221,9 +221,13 @@ async def main_async(args) -> dict:
     await asyncio.sleep(0.4 * total)
     windows["quiet"] = (time.monotonic() - 0.2 * total, time.monotonic())
     # the attackers run in a process of their own: on this one they would slow the clients that measure
+    # (--hostile-nice: at a lower priority, so that on a machine whose cores the server and clients already fill the
+    # attackers' own CPU does not stand in for what their messages cost the server; attackers are remote in play)
     h = await asyncio.create_subprocess_exec(sys.executable, "-m", "benchmarks.serve_load", "--hostile", url,
                                              "--bundle", "-", "--minutes", str(0.2 * args.minutes),
-                                             stdout=subprocess.PIPE)
+                                             stdout=subprocess.PIPE,
+                                             preexec_fn=(lambda: os.nice(args.hostile_nice)) if args.hostile_nice
+                                             else None)
     hostile_log = json.loads((await h.communicate())[0])
     windows["hostile"] = (time.monotonic() - 0.2 * total, time.monotonic())
     proc.send_signal(signal.SIGTERM)
@@ -244,7 +248,7 @@ async def main_async(args) -> dict:
     rss = [float(re.search(r"rss (\d+) MB", s).group(1)) for s in status_lines]
     seconds = time.monotonic() - began
     return {
-        "clients": args.clients, "characters": args.clients * args.characters, "minutes": args.minutes,
+        "clients": args.clients, "characters": args.clients * args.characters, "minutes": args.minutes, "hostile_nice": args.hostile_nice,
         "bundle": str(args.bundle), "variant": args.variant, "errors": stats.errors[:20], "error_count": len(stats.errors),
         "tokens": stats.tokens, "bytes_per_character_second": stats.bytes / seconds / (args.clients * args.characters),
         "latency_ms": {k: {"p50": 1e3 * percentile(v, 50), "p99": 1e3 * percentile(v, 99), "n": len(v)}
@@ -343,6 +347,8 @@ def main():
     ap.add_argument("--simple", action="store_true", help="clients only: real time and latency")
     ap.add_argument("--ray", type=int, default=0, metavar="REPLICAS", help="with --simple: on Ray Serve")
     ap.add_argument("--out", type=Path, help="write the results as JSON here too")
+    ap.add_argument("--hostile-nice", type=int, default=0, choices=range(0, 20), metavar="0-19",
+                    help="run the attackers' process at this nice value (default 0: as the server and clients)")
     ap.add_argument("--hostile", metavar="URL", help=argparse.SUPPRESS)    # the attackers' process
     args = ap.parse_args()
     if args.hostile:
