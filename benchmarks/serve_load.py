@@ -248,7 +248,8 @@ async def main_async(args) -> dict:
     rss = [float(re.search(r"rss (\d+) MB", s).group(1)) for s in status_lines]
     seconds = time.monotonic() - began
     return {
-        "clients": args.clients, "characters": args.clients * args.characters, "minutes": args.minutes, "hostile_nice": args.hostile_nice,
+        "clients": args.clients, "characters": args.clients * args.characters, "minutes": args.minutes,
+        "hostile_nice": args.hostile_nice,
         "bundle": str(args.bundle), "variant": args.variant, "errors": stats.errors[:20], "error_count": len(stats.errors),
         "tokens": stats.tokens, "bytes_per_character_second": stats.bytes / seconds / (args.clients * args.characters),
         "latency_ms": {k: {"p50": 1e3 * percentile(v, 50), "p99": 1e3 * percentile(v, 99), "n": len(v)}

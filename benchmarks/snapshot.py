@@ -15,6 +15,9 @@ What it covers (each motion generated alone unless stated; ~1,000 motions and fi
   set tokens, per variant and seed;
 - crowds (fixed-capacity variants): 6 characters joining at different ticks, switching prompts, leaving after
   `seconds` or removed, under the bundle's sampling and greedy; and `mogo crowd`'s files;
+- control (bundles with control): steered characters in crowds (fixed-capacity variants, chunk 4 and 1: a path, a
+  goal, a joystick with strafing, a game-owned root moved every tick, a release and a prompt switch under control)
+  and in streams (fp32, int8, fixed-capacity variants);
 - files: a clip and a timeline saved as .npy, .json, .bvh, .gif and .glb, and as .glb and .bvh on every shipped
   rig (also in place): their bytes.
 `--only` picks sections. The "clips" section also runs against the API of the runtime before issue 13 (keyword
@@ -65,11 +68,12 @@ CROWD = [(PROMPTS[0], 1, 0, None, (9, PROMPTS[6]), None), (PROMPTS[1], 2, 0, 6.0
          (PROMPTS[6], 11, 2, None, (17, PROMPTS[1]), None), (PROMPTS[0], 2 ** 63 - 1, 1, None, None, None)]
 CROWD_TICKS = 90
 SECTIONS = ("clips", "variants", "batches", "endless", "crowds", "control", "files")
-# steered characters (bundles with control): (request, tick it is made at); requests made on a crowd's character or
-# on a stream at its frame's token
+# steered characters (bundles with control): (request, its arguments, the tick a crowd's character gets it at; a
+# stream gets it before its first frame); set_root is sent again every tick after
 CONTROL = [("follow_path", ([(0.0, 0.0), (2.0, 1.0), (5.0, 1.0), (5.0, -3.0)], 1.3), 0),
            ("walk_to", ((4.0, 2.0), 1.0), 0), ("steer", ((0.0, 1.4), (1.0, 0.0)), 1),
-           ("walk_to", ((-3.0, -2.0), 2.5), 2), ("set_root", None, 0), ("follow_path", ([(0.0, 0.0), (0.0, 3.0)], 0.8), 4)]
+           ("walk_to", ((-3.0, -2.0), 2.5), 2), ("set_root", None, 0),
+           ("follow_path", ([(0.0, 0.0), (0.0, 3.0)], 0.8), 4)]
 CONTROL_TICKS = 70
 
 
@@ -232,8 +236,7 @@ def control(bundle: str, out: dict) -> None:
                 chars = [crowd.add(PROMPTS[0] if i % 3 else PROMPTS[9], seed=i) for i in range(len(CONTROL))]
                 parts: dict[int, list] = {i: [] for i in range(len(chars))}
                 for t in range(CONTROL_TICKS):
-                    for i, (c, (name, args), start) in enumerate(zip(chars, [r[:2] for r in CONTROL],
-                                                                   [r[2] for r in CONTROL])):
+                    for c, (name, args, start) in zip(chars, CONTROL):
                         if t == start or (name == "set_root" and t > start):
                             _request(c, (name, args), t)
                     if t == 40:
@@ -246,9 +249,9 @@ def control(bundle: str, out: dict) -> None:
                     out[key + "/index"] = np.array([index for index, _, _ in p], np.int64)
                     out[key + "/features"] = np.concatenate([f for _, f, _ in p])
                     out[key + "/joints"] = np.concatenate([j for _, _, j in p])
-        for i, (request, _) in enumerate(zip(CONTROL[:4], range(4))):
+        for i, (name, args, _) in enumerate(CONTROL[:4]):
             stream = gen.stream(PROMPTS[0], seed=i)
-            _request(stream, request[:2], 0)
+            _request(stream, (name, args), 0)
             features, joints = [], []
             for frame in stream:
                 features.append(frame.features)
