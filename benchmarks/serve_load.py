@@ -126,8 +126,12 @@ def _read(message: bytes, n: int, levels, expected: dict, own: dict, stats: Stat
     return levels
 
 
-async def hostile(url: str, port: int, stop: asyncio.Event, log: list[str]):
-    """Garbage, huge messages, floods, wrong tokens and half-open connections, one after another, until `stop`."""
+ATTACKS = ("garbage", "huge", "flood", "wrong", "half-open")
+
+
+async def hostile(url: str, port: int, stop: asyncio.Event, log: list[str], attacks=ATTACKS):
+    """Garbage, huge messages, floods, wrong tokens and half-open connections (those of `attacks`), one after
+    another, until `stop`."""
     from websockets.asyncio.client import connect
 
     async def attempt(name, fn):
@@ -162,22 +166,35 @@ async def hostile(url: str, port: int, stop: asyncio.Event, log: list[str]):
 
     half_open = []
     while not stop.is_set():
-        for name, fn in (("garbage", garbage), ("16 MB", huge), ("10,000 messages", flood), ("wrong token", wrong)):
-            await attempt(name, fn)
-        s = socket.create_connection(("127.0.0.1", port))      # a TCP connection that never speaks
-        half_open.append(s)
+        for key, name, fn in (("garbage", "garbage", garbage), ("huge", "16 MB", huge),
+                              ("flood", "10,000 messages", flood), ("wrong", "wrong token", wrong)):
+            if key in attacks:
+                await attempt(name, fn)
+        if "half-open" in attacks:
+            try:
+                half_open.append(socket.create_connection(("127.0.0.1", port)))     # a connection that never speaks
+            except OSError as e:
+                log.append(f"half-open: {type(e).__name__}: {str(e)[:70]}")
         await asyncio.sleep(0.5)
     for s in half_open:
         s.close()
 
 
-async def attack(url: str, seconds: float) -> list[str]:
+async def attack(url: str, seconds: float, attacks=ATTACKS) -> list[str]:
     stop, log = asyncio.Event(), []
-    task = asyncio.create_task(hostile(url, int(url.rsplit(":", 1)[1]), stop, log))
+    task = asyncio.create_task(hostile(url, int(url.rsplit(":", 1)[1]), stop, log, attacks))
     await asyncio.sleep(seconds)
     stop.set()
     await task
     return sorted(set(log))
+
+
+def _attacks(text: str) -> list[str]:
+    names = [a for a in text.split(",") if a]
+    unknown = sorted(set(names) - set(ATTACKS))
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"attacks are some of {','.join(ATTACKS)}, got {text!r}")
+    return names
 
 
 def percentile(values, q):
@@ -225,10 +242,16 @@ async def main_async(args) -> dict:
     # attackers' own CPU does not stand in for what their messages cost the server; attackers are remote in play)
     h = await asyncio.create_subprocess_exec(sys.executable, "-m", "benchmarks.serve_load", "--hostile", url,
                                              "--bundle", "-", "--minutes", str(0.2 * args.minutes),
+                                             "--attacks", ",".join(args.attacks),
                                              stdout=subprocess.PIPE,
                                              preexec_fn=(lambda: os.nice(args.hostile_nice)) if args.hostile_nice
                                              else None)
-    hostile_log = json.loads((await h.communicate())[0])
+    out, _ = await h.communicate()
+    if h.returncode or proc.poll() is not None:
+        last = "\n".join(line for _, line in status[-20:])
+        raise SystemExit(f"the attackers' process exited {h.returncode}, the server "
+                         f"{'exited ' + str(proc.poll()) if proc.poll() is not None else 'runs'}; its last lines:\n{last}")
+    hostile_log = json.loads(out)
     windows["hostile"] = (time.monotonic() - 0.2 * total, time.monotonic())
     proc.send_signal(signal.SIGTERM)
     stopped = proc.wait(60)
@@ -249,7 +272,7 @@ async def main_async(args) -> dict:
     seconds = time.monotonic() - began
     return {
         "clients": args.clients, "characters": args.clients * args.characters, "minutes": args.minutes,
-        "hostile_nice": args.hostile_nice,
+        "hostile_nice": args.hostile_nice, "attacks": args.attacks,
         "bundle": str(args.bundle), "variant": args.variant, "errors": stats.errors[:20], "error_count": len(stats.errors),
         "tokens": stats.tokens, "bytes_per_character_second": stats.bytes / seconds / (args.clients * args.characters),
         "latency_ms": {k: {"p50": 1e3 * percentile(v, 50), "p99": 1e3 * percentile(v, 99), "n": len(v)}
@@ -350,10 +373,12 @@ def main():
     ap.add_argument("--out", type=Path, help="write the results as JSON here too")
     ap.add_argument("--hostile-nice", type=int, default=0, choices=range(0, 20), metavar="0-19",
                     help="run the attackers' process at this nice value (default 0: as the server and clients)")
+    ap.add_argument("--attacks", type=_attacks, default=list(ATTACKS),
+                    help=f"the hostile clients' attacks, comma-separated (default all: {','.join(ATTACKS)})")
     ap.add_argument("--hostile", metavar="URL", help=argparse.SUPPRESS)    # the attackers' process
     args = ap.parse_args()
     if args.hostile:
-        print(json.dumps(asyncio.run(attack(args.hostile, 60 * args.minutes))))
+        print(json.dumps(asyncio.run(attack(args.hostile, 60 * args.minutes, args.attacks))))
         return
     result = asyncio.run(main_async(args))
     text = json.dumps(result, indent=1)
