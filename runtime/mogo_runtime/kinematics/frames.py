@@ -37,9 +37,9 @@ class RootIntegrator:
     @staticmethod
     def push_many(roots: list["RootIntegrator"], features: np.ndarray) -> np.ndarray:
         """`push` for many streams at once, the same numbers: features (B, n, D), stream b's next n frames ->
-        joints (B, n, J, 3). Elementwise arithmetic only, in push's order, so a stream's joints do not depend on
-        the batch it is in (its cos and sin too: numpy's float64 sin and cos gave libm's bits at every array length
-        and offset tried, 200,000 values)."""
+        joints (B, n, J, 3). Elementwise arithmetic and in-order running sums only, so a stream's joints do not
+        depend on the batch it is in (its cos and sin too: numpy's float64 sin and cos gave libm's bits at every
+        array length and offset tried, 200,000 values)."""
         x = np.asarray(features)
         out_dtype = x.dtype if x.dtype.kind == "f" else np.float32
         x64 = x.astype(np.float64)
@@ -49,15 +49,16 @@ class RootIntegrator:
         position = np.stack([r.position for r in roots])                  # (B, 2)
         previous = np.stack([r.previous for r in roots])                  # (B, 3): the frame before each
         velocity = np.concatenate([previous[:, None], x64[:, :-1, :3]], axis=1)    # (B, n, 3) moving frame i
-        cos2, sin2, pos = np.empty((B, n)), np.empty((B, n)), np.empty((B, n, 2))
-        for i in range(n):      # a running sum: frame i's heading and position add to frame i - 1's
-            rot_vel, vx, vz = velocity[:, i, 0], velocity[:, i, 1], velocity[:, i, 2]
-            angle = angle + rot_vel
-            c, s = np.cos(angle), np.sin(angle)
-            # qrot(qinv(q(angle)), v) for v = (vx, 0, vz): a rotation by -2*angle about y
-            cos2[:, i], sin2[:, i] = c * c - s * s, 2 * c * s
-            position = position + np.stack([cos2[:, i] * vx - sin2[:, i] * vz, sin2[:, i] * vx + cos2[:, i] * vz], 1)
-            pos[:, i] = position
+        # running sums over the frames: cumsum adds in order, as a frame-by-frame loop would
+        angles = np.cumsum(np.concatenate([angle[:, None], velocity[..., 0]], axis=1), axis=1)[:, 1:]   # (B, n)
+        # contiguous, as the angles a frame-by-frame loop would pass: numpy may take another path for strided input
+        angles = np.ascontiguousarray(angles)
+        c, s = np.cos(angles), np.sin(angles)
+        # qrot(qinv(q(angle)), v) for v = (vx, 0, vz): a rotation by -2*angle about y
+        cos2, sin2 = c * c - s * s, 2 * c * s
+        vx, vz = velocity[..., 1], velocity[..., 2]
+        step = np.stack([cos2 * vx - sin2 * vz, sin2 * vx + cos2 * vz], axis=-1)                     # (B, n, 2)
+        pos = np.cumsum(np.concatenate([position[:, None], step], axis=1), axis=1)[:, 1:]          # (B, n, 2)
         ric = x64[:, :, 4:4 + (J - 1) * 3].reshape(B, n, J - 1, 3)
         joints = np.empty((B, n, J, 3))
         joints[:, :, 0, 0], joints[:, :, 0, 1], joints[:, :, 0, 2] = pos[..., 0], x64[:, :, 3], pos[..., 1]
@@ -67,7 +68,7 @@ class RootIntegrator:
         joints[:, :, 1:, 2] = s2 * ric[..., 0] + c2 * ric[..., 2] + pos[..., 1:]
         for b, r in enumerate(roots):
             if n:
-                r.angle, r.position, r.previous = angle[b], position[b].copy(), x64[b, -1, :3].copy()
+                r.angle, r.position, r.previous = angles[b, -1], pos[b, -1].copy(), x64[b, -1, :3].copy()
         return joints.astype(out_dtype)
 
     def next_pose(self) -> np.ndarray:
