@@ -64,8 +64,10 @@ def is_distilled(out: Path) -> bool:
     return path.exists() and "distilled" in read_checkpoint(path, "transformer")["meta"]
 
 
-def distill_transformer(data: Path, out: Path, preset: str, seed: int = 0, progress: bool = True) -> Path | None:
-    """The preset's guidance distillation (None: it has none) of out/transformer.pt. Returns the path."""
+def distill_transformer(data: Path, out: Path, preset: str, seed: int = 0, progress: bool = True,
+                        device: torch.device | None = None) -> Path | None:
+    """The preset's guidance distillation (None: it has none) of out/transformer.pt, on `device` (default: the
+    CPU). Returns the path."""
     plan = get_preset(preset).distill
     path = out / "transformer.pt"
     if plan is None:
@@ -73,6 +75,7 @@ def distill_transformer(data: Path, out: Path, preset: str, seed: int = 0, progr
     if is_distilled(out):
         return path
     teacher, cfg, payload = build_from_checkpoint(path, "transformer", tmodel.TransformerConfig, tmodel.RQHCTransformer)
+    teacher.to(device or torch.device("cpu"))
     if not payload["train"].get("done"):
         raise RuntimeError(f"{path}: the transformer has not finished training; distil it once it has")
     write_atomic(out / TEACHER, lambda f: f.write(path.read_bytes()))     # never half a file, if killed

@@ -357,7 +357,7 @@ def train_all(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progr
     train_transformer(data, out, preset, seed, progress, group=group, loss_log=loss_log)
     t2 = time.perf_counter()
     if group.is_main:    # one process: a few hundred steps on the trained model
-        distill_transformer(data, out, preset, seed, progress)
+        distill_transformer(data, out, preset, seed, progress, group.device)
     group.barrier()
     t3 = time.perf_counter()
     if group.is_main:

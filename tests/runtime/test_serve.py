@@ -130,6 +130,69 @@ def test_a_reconnecting_client_misses_and_repeats_nothing(gen):
     np.testing.assert_array_equal(np.stack(tokens[:30]), reference_tokens(gen, "a person walks forward", 1, 30))
 
 
+def test_sessions_change_only_on_the_tick_thread(gen):
+    """The tick thread iterates the sessions while the event loop welcomes clients: a session registered on the
+    loop made the load test's server fail with "dictionary changed size during iteration"."""
+    import threading
+
+    changed_on = []
+
+    class Watched(dict):
+        def __setitem__(self, k, v):
+            changed_on.append(threading.current_thread().name)
+            super().__setitem__(k, v)
+
+        def __delitem__(self, k):
+            changed_on.append(threading.current_thread().name)
+            super().__delitem__(k)
+
+    async def main():
+        server, url, stop, task = await running(gen, Limits(linger_seconds=0.2))
+        server.sessions = Watched()
+        a = await ServerClient.connect(url, TOKEN)
+        await a.add("a person walks forward", seed=1)
+        await a.close()
+        await asyncio.sleep(1.0)          # its session expires
+        b = await ServerClient.connect(url, TOKEN)
+        await b.close()
+        stop.set()
+        await task
+    asyncio.run(main())
+    assert len(changed_on) >= 3, changed_on          # two sessions registered, one expired
+    assert all(name.startswith("mogo-tick") for name in changed_on), changed_on
+
+
+def test_the_server_stops_reading_a_message_it_refused(gen):
+    """A client that announces a 64 MB frame and keeps writing: the server answers 1009 and reads no further, so
+    the client's writes stall once the kernel's buffers are full (websockets alone would read all 64 MB, and
+    discard it, on the server's loop)."""
+    async def main():
+        server, url, stop, task = await running(gen, Limits(max_message_bytes=4096))
+        port = int(url.rsplit(":", 1)[1])
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                     b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n")
+        assert b" 101 " in await reader.readuntil(b"\r\n\r\n")
+        claimed = 64 << 20
+        writer.write(bytes([0x81, 0xFF]) + claimed.to_bytes(8, "big") + b"\0\0\0\0")   # masked with 0000
+        chunk, sent = bytes(1 << 20), 0
+        try:
+            while sent < claimed:
+                writer.write(chunk)
+                await asyncio.wait_for(writer.drain(), 1.0)
+                sent += len(chunk)
+        except (asyncio.TimeoutError, ConnectionError):
+            pass
+        close = await asyncio.wait_for(reader.readexactly(4), 5)
+        writer.transport.abort()
+        stop.set()
+        await task
+        return sent, claimed, close
+    sent, claimed, close = asyncio.run(main())
+    assert close[0] == 0x88 and int.from_bytes(close[2:4], "big") == 1009, close
+    assert sent < claimed // 2, f"the client wrote {sent >> 20} MB of its {claimed >> 20} MB message"
+
+
 @pytest.mark.parametrize("send, message", [
     ("not json", "JSON object"),
     (json.dumps({"op": "dance"}), "op of"),

@@ -93,7 +93,7 @@ class MotionServer:
         start = time.perf_counter()
         frames = self.crowd.tick() if len(self.crowd) else {}
         out: dict[Session, bytes] = {}
-        for session in self.sessions.values():
+        for session in list(self.sessions.values()):
             blobs = []
             for ident, h in list(session.characters.items()):
                 key = h.tap.sent
@@ -205,10 +205,9 @@ class MotionServer:
             if session.queue is not None:
                 raise ProtocolError("that session is connected elsewhere")
         else:
-            if sum(s.queue is not None for s in self.sessions.values()) >= self.limits.connections:
+            if self._connected() >= self.limits.connections:
                 raise ProtocolError(f"the server has {self.limits.connections} connections, its limit")
-            session = Session(secrets.token_urlsafe(18))
-            self.sessions[session.id] = session
+            session = Session(secrets.token_urlsafe(18))     # registered by _resume, on the tick thread
         queue = asyncio.Queue(self.limits.send_queue)
         welcome = await asyncio.get_running_loop().run_in_executor(self.pool, self._resume, session, msg["resume"],
                                                                    queue)
@@ -220,7 +219,12 @@ class MotionServer:
 
     def _resume(self, session: Session, resume: dict[int, int], queue: asyncio.Queue) -> list:
         """On the tick thread: the welcome and the records a reconnecting client missed; from now on the session's
-        tick messages wait in its backlog until the handler has queued these."""
+        tick messages wait in its backlog until the handler has queued these. A new session is registered here:
+        the sessions change only on this thread, which iterates them while the event loop reads them."""
+        if self.sessions.get(session.id) is not session:
+            if session.characters:       # expired meanwhile (_expire removed it and its characters)
+                raise ProtocolError("unknown or expired session")
+            self.sessions[session.id] = session
         replay = []
         for ident, h in session.characters.items():
             expected = resume.get(ident, 0)
@@ -263,12 +267,16 @@ class MotionServer:
             if ws is not None:
                 asyncio.create_task(_close(ws, f"{self.limits.send_queue} messages unread: the client is too slow"))
 
+    def _connected(self) -> int:
+        # list() copies the dict in one step, so the tick thread cannot change it halfway through the count
+        return sum(s.queue is not None for s in list(self.sessions.values()))
+
     def status(self) -> str:
         """One line: ticks, characters, sessions, tick times since the last status line, memory."""
         times = sorted(self.tick_seconds)
         self.tick_seconds.clear()
         p50, p99 = (times[len(times) // 2], times[min(len(times) - 1, int(0.99 * len(times)))]) if times else (0, 0)
-        return (f"tick {self.ticks}, {len(self.crowd)} characters, {sum(s.queue is not None for s in self.sessions.values())}"
+        return (f"tick {self.ticks}, {len(self.crowd)} characters, {self._connected()}"
                 f" clients, tick p50 {1e3 * p50:.2f} ms p99 {1e3 * p99:.2f} ms (of {1e3 * self.period:.0f}), "
                 f"rss {_rss_mb():.0f} MB")
 
@@ -316,7 +324,8 @@ class MotionServer:
                 loop.add_signal_handler(sig, stop.set)
         async with serve(self.handler, host, port, origins=self.origins, compression=None,
                          max_size=self.limits.max_message_bytes, max_queue=4, ping_interval=10,
-                         ping_timeout=10) as server:
+                         ping_timeout=10, close_timeout=CLOSE_SECONDS,
+                         create_connection=_connection_class()) as server:
             if ready is not None:
                 ready(server)
             await self.run(stop)
@@ -357,6 +366,32 @@ class MotionServer:
         except (ValueError, KeyError, TypeError, AttributeError) as e:
             raise ValueError(f"{path}: not a motion server's saved state ({e})") from None
         path.rename(path.with_name(path.name + ".restored"))     # restored once: a later crash cannot replay it
+
+
+# How long a client the server closed has to answer the close before its connection is dropped (websockets' default
+# is 10 s).
+CLOSE_SECONDS = 2.0
+
+
+def _connection_class():
+    """websockets' server connection, except that it stops reading from a client whose frames the protocol refused
+    (too big, not WebSocket). websockets then reads and discards whatever the client still sends until it closes:
+    on loopback a 16 MB message cost the server 10-20 ms of its tick thread's CPU (benchmarks/serve_load.py).
+    Paused, the kernel's buffers fill and the client's writes stall; the connection ends at CLOSE_SECONDS."""
+    from websockets.asyncio.server import ServerConnection
+    from websockets.frames import CloseCode
+
+    refused = {CloseCode.PROTOCOL_ERROR, CloseCode.UNSUPPORTED_DATA, CloseCode.INVALID_DATA,
+               CloseCode.MESSAGE_TOO_BIG}
+
+    class RefusingConnection(ServerConnection):
+        def data_received(self, data: bytes) -> None:
+            super().data_received(data)
+            sent = self.protocol.close_sent
+            if sent is not None and self.protocol.close_rcvd is None and sent.code in refused:
+                self.transport.pause_reading()
+
+    return RefusingConnection
 
 
 def _rss_mb() -> float:
