@@ -59,6 +59,7 @@ class MotionClient:
 
     def apply(self, records: list[Record]) -> dict[int, Frames]:
         out: dict[int, list[Frames]] = {}
+        waiting: dict[int, ClientCharacter] = {}     # tokens pushed, frames not made: decoded together at the end
         for record in records:
             if isinstance(record, Hello):
                 self._hello(record)
@@ -72,17 +73,34 @@ class MotionClient:
                 if (record.codes >= self.dims.codebook_size).any():
                     raise WireError(f"character {c.ident}: a code outside the codebook ({self.dims.codebook_size})")
                 for token in record.codes:
-                    n = c.frames.push(token)
-                    if n:
+                    n = c.frames.due()
+                    if n:       # its earlier tokens' frames first, alone: the maker holds only a window of tokens
                         out.setdefault(c.ident, []).append(self._frames(c, n))
+                    c.frames.push(token)
                 c.next_seq += len(record.codes)
+                waiting[c.ident] = c
             elif isinstance(record, Warp):
                 c = self._character(record.character)
                 self._flush(c, out)     # the frames before it were placed without it
                 c.warp.plan(record.frame, record.frames, np.array(record.pose), record.turn, record.shift)
             elif isinstance(record, Event):
                 self._event(record, out)
+        self._decode(waiting.values(), out)
         return {ident: _joined(chunks) for ident, chunks in out.items()}
+
+    def _decode(self, characters, out: dict[int, list[Frames]]) -> None:
+        """The frames due of many characters, one decoder call per number of tokens due (a crowd's tick arrives as
+        one message): the same bits as one character at a time, whatever the chunk."""
+        groups: dict[int, list[ClientCharacter]] = {}
+        for c in characters:
+            n = c.frames.due()
+            if n and not c.ended:
+                groups.setdefault(n, []).append(c)
+        for n, group in groups.items():
+            makers = [c.frames for c in group]
+            for c, frames in zip(group, FrameMaker.frames_many(makers, decode_due(self.decoder, makers, n))):
+                frames.joints = c.warp.joints(frames.index, frames.joints)
+                out.setdefault(c.ident, []).append(frames)
 
     def _hello(self, hello: Hello) -> None:
         d = self.dims
