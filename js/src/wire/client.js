@@ -82,6 +82,7 @@ export class MotionClient {
 
   async #apply(records) {
     const out = new Map();   // ident -> the frames made, in chunks
+    const waiting = new Map();   // tokens pushed, frames not made: decoded together at the end
     for (const record of records) {
       if (record instanceof Hello) {
         this.#hello(record);
@@ -98,10 +99,13 @@ export class MotionClient {
         }
         const L = record.levels;
         for (let t = 0; t < record.count; t++) {
-          const n = c.frames.push(record.codes.subarray(t * L, (t + 1) * L));
+          // its earlier tokens' frames first, alone: the maker holds only a window of tokens
+          const n = c.frames.due();
           if (n) add(out, c.ident, await this.#frames(c, n));
+          c.frames.push(record.codes.subarray(t * L, (t + 1) * L));
         }
         c.nextSeq += record.count;
+        waiting.set(c.ident, c);
       } else if (record instanceof Warp) {
         const c = this.#character(record.character);
         await this.#flush(c, out);   // the frames before it were placed without it
@@ -110,7 +114,29 @@ export class MotionClient {
         await this.#event(record, out);
       }
     }
+    await this.#decode(waiting.values(), out);
     return new Map([...out].map(([ident, chunks]) => [ident, joined(chunks)]));
+  }
+
+  /** The frames due of many characters, one decoder call per number of tokens due (client.py `_decode`). */
+  async #decode(characters, out) {
+    const groups = new Map();
+    for (const c of characters) {
+      const n = c.frames.due();
+      if (n && !c.ended) {
+        if (!groups.has(n)) groups.set(n, []);
+        groups.get(n).push(c);
+      }
+    }
+    for (const [n, group] of groups) {
+      const features = await decodeDue(this.decoder, group.map((c) => c.frames), n);
+      const each = features.length / group.length;
+      group.forEach((c, b) => {
+        const frames = c.frames.framesFrom(features.subarray(b * each, (b + 1) * each));
+        frames.joints = c.warp.joints(frames.index, frames.joints, this.skeleton.parents.length * 3);
+        add(out, c.ident, frames);
+      });
+    }
   }
 
   #hello(hello) {
