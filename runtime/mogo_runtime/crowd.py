@@ -47,6 +47,11 @@ SWITCH_HISTORY = 10_000   # prompt switches kept per character, as FrameStream k
 MEMORY_SHARE = 0.5        # of the memory available when a crowd is made, what its characters may take by default
 SCRATCH_SLACK = 8         # a rebuild's scratch cache is kept until it holds this many times the rows rebuilds need
 SCRATCH_CALLS = 64        # ... the most of the last this many rebuilds
+# The most rows one step call on a scratch cache feeds (rebuilds, retries after END). Characters that start together
+# (a restored server's, a crowd added at once) rebuild their contexts in the same ticks from then on; one call over
+# all of them kept a scratch cache of every one resident (800 characters of the tests' tiny model: +110 MB, RSS 1.4x
+# a staggered crowd's; on base 2 MiB a row). At 64 rows a call's fixed cost (~0.7 ms on base) is ~3% of its rows'.
+SCRATCH_ROWS = 64
 
 
 def available_memory() -> int:
@@ -259,7 +264,9 @@ class Crowd:
 
         A plan of more than one token is a rebuild from an empty context: its tokens but the last run on a scratch
         cache (those characters only), which then replaces their rows of the crowd's cache. Every character's last
-        token goes into one call over all of them, on the crowd's own cache when every character is in it."""
+        token goes into one call over all of them, on the crowd's own cache when every character is in it. A row's
+        numbers do not depend on the others in its call, so calls on a scratch cache go SCRATCH_ROWS rows at a
+        time."""
         policy = self.policy
         slots = np.array([self._slot(c) for c in chars])
         rows = (slots[:, None] * policy.rows + np.arange(policy.rows)).ravel()
@@ -269,8 +276,10 @@ class Crowd:
         def control_at(members, k):      # the controls of position k of each member's feed, for its rows
             return policy.feed(np.stack([plans[m][1][k] for m in members])) if controlled else None
 
-        for size in sorted(set(sizes[sizes > 1].tolist())):
-            group = np.flatnonzero(sizes == size)
+        per_call = max(1, SCRATCH_ROWS // policy.rows)
+        for size, start in [(size, start) for size in sorted(set(sizes[sizes > 1].tolist()))
+                            for start in range(0, int(np.sum(sizes == size)), per_call)]:
+            group = np.flatnonzero(sizes == size)[start:start + per_call]
             scratch = self._scratch(len(group) * policy.rows)
             emb = np.concatenate([chars[m].context.rows_emb for m in group])
             for k in range(size - 1):
@@ -285,11 +294,15 @@ class Crowd:
         control = control_at(range(len(chars)), -1)
         if len(chars) == len(self.characters):      # the crowd's own cache, written in place
             logits = self.backend.step_in_place(emb, last, position, self.cache, control)
-        else:                                       # a retry after END: fresh contexts, then their rows
-            scratch = self._scratch(len(rows))
-            logits = self.backend.step_in_place(emb, last, position, scratch, control)
-            for c, fresh in zip(self.cache, scratch):
-                c[rows] = fresh
+        else:       # a retry after END: BOS at slot 0 of fresh contexts, then their rows
+            logits = []
+            for part in [slice(i, i + per_call * policy.rows) for i in range(0, len(rows), per_call * policy.rows)]:
+                scratch = self._scratch(len(rows[part]))
+                logits.append(self.backend.step_in_place(emb[part], last[part], position[part], scratch,
+                                                         None if control is None else control[part]))
+                for c, fresh in zip(self.cache, scratch):
+                    c[rows[part]] = fresh
+            logits = np.concatenate(logits)
         return policy.pick(logits[:, 0], np.array([c.context.may_end for c in chars]),
                            [c.context.rng for c in chars])
 
@@ -297,9 +310,8 @@ class Crowd:
         """Caches for `rows` rows that start a context: kept between ticks, as a fresh allocation of this size
         would fault in its pages every time. What earlier contexts left there is masked out of attention (a
         context at position p reads slots 0..p only), so only finiteness matters: zeros at first. Made again
-        for the most rows of the last SCRATCH_CALLS calls when it holds SCRATCH_SLACK times more: a restored crowd
-        resumes every context in one tick, and that scratch would stay resident (50 MB for 800 characters of the
-        tests' tiny model)."""
+        for the most rows of the last SCRATCH_CALLS calls when it holds SCRATCH_SLACK times more, so a tick with
+        many rebuilds does not keep its scratch resident."""
         self._asked.append(rows)
         need = max(self._asked)
         if not rows <= len(self._spare[0]) <= SCRATCH_SLACK * need:

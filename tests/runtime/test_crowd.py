@@ -191,3 +191,26 @@ def test_a_rebuilds_scratch_cache_is_given_back_when_far_too_large(portable_toy_
     crowd._scratch(10)
     assert len(crowd._spare[0]) == 10 < 800 / SCRATCH_SLACK
     assert len(crowd._scratch(30)[0]) == 30 and len(crowd._scratch(12)[0]) == 12 and len(crowd._spare[0]) == 30
+
+
+def test_characters_that_rebuild_together_do_it_a_few_rows_a_call(portable_toy_bundle, monkeypatch):  # noqa: F811
+    """Characters that start together rebuild their contexts in the same ticks (a restored server's all do): their
+    rebuilds (and retries after END) go SCRATCH_ROWS rows a call, so the scratch cache stays that small, and every
+    token and frame is what one call over all of them gives."""
+    import mogo_runtime.crowd as crowd_module
+
+    plan = [(PROMPTS[i % len(PROMPTS)], 40 + i, 0, None, None) for i in range(9)]
+    gen = MotionGenerator(portable_toy_bundle, variant="int8_fixed")
+    rows = []
+    scratch = Crowd._scratch
+    monkeypatch.setattr(Crowd, "_scratch", lambda self, n: rows.append(n) or scratch(self, n))
+    monkeypatch.setattr(crowd_module, "SCRATCH_ROWS", 10 ** 6)
+    whole = run_crowd(gen, None, plan, ticks=30)
+    assert max(rows) >= 4              # several rebuilt in one call (ends at END part them)
+    rows.clear()
+    monkeypatch.setattr(crowd_module, "SCRATCH_ROWS", 2)
+    split = run_crowd(gen, None, plan, ticks=30)
+    assert max(rows) == 2
+    for i in whole:
+        assert np.array_equal(whole[i][0], split[i][0]) and np.array_equal(whole[i][1], split[i][1]), i
+        assert whole[i][2].count == split[i][2].count == 30

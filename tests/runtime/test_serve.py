@@ -359,3 +359,30 @@ def test_joints_on_request_are_the_crowd_s(gen):
     for record, frames in zip(got, want[first:]):
         assert record.frame == frames.index
         np.testing.assert_array_equal(record.joints, frames.joints)
+
+
+def test_the_tick_thread_hands_free_memory_back_every_trim_seconds(gen, monkeypatch):
+    """glibc keeps what a passing peak freed (a restored server's characters rebuild together); the server trims
+    its heap every TRIM_SECONDS, on the tick thread, between ticks."""
+    import threading
+
+    from mogo_runtime.serve import server as server_module
+
+    assert server_module._malloc_trim() is not None          # this machine's libc is glibc: the trim is real
+    calls = []
+    trim = server_module._return_free_memory
+    monkeypatch.setattr(server_module, "TRIM_SECONDS", 0.1)
+    monkeypatch.setattr(server_module, "_return_free_memory",
+                        lambda: calls.append((threading.current_thread().name, server.ticks)) or trim())
+
+    async def main():
+        nonlocal server
+        server, url, stop, task = await running(gen)
+        await asyncio.sleep(0.55)
+        stop.set()
+        await task
+    server = None
+    asyncio.run(main())
+    assert 3 <= len(calls) <= 7, calls
+    assert all(name.startswith("mogo-tick") for name, _ in calls), calls
+    assert [t for _, t in calls] == sorted(t for _, t in calls) and calls[-1][1] > calls[0][1], calls

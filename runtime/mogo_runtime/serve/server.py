@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import functools
 import hmac
 import json
 import os
@@ -283,11 +284,14 @@ class MotionServer:
     async def run(self, stop: asyncio.Event) -> None:
         """Tick in real time until `stop` is set; a status line on stderr every `status_seconds`."""
         loop = asyncio.get_running_loop()
-        deadline = last_status = loop.time()
+        deadline = last_status = last_trim = loop.time()
         while not stop.is_set():
             if self.status_seconds and loop.time() - last_status >= self.status_seconds:
                 last_status = loop.time()
                 print(f"mogo serve: {self.status()}", file=sys.stderr, flush=True)
+            if loop.time() - last_trim >= TRIM_SECONDS:
+                last_trim = loop.time()
+                await loop.run_in_executor(self.pool, _return_free_memory)
             replies, out = await loop.run_in_executor(self.pool, self._advance)
             for session, message in replies:
                 self._deliver(session, message)
@@ -392,6 +396,30 @@ def _connection_class():
                 self.transport.pause_reading()
 
     return RefusingConnection
+
+
+# How often the tick thread hands the memory malloc holds free back to the system. glibc keeps freed blocks in its
+# heap: a restored server's characters rebuild their contexts together, and their passing peak stayed resident (800
+# characters of the tests' tiny model: 322 MB against 226 for the same crowd started staggered; 207 and 206 after
+# a trim). A trim took 2.6 ms there, 11 ms beside 256 base characters.
+TRIM_SECONDS = 30.0
+
+
+def _return_free_memory() -> None:
+    """glibc's malloc_trim(0); nothing elsewhere (other C libraries manage their heaps their own way)."""
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)
+
+
+@functools.cache
+def _malloc_trim():
+    try:
+        import ctypes
+
+        return ctypes.CDLL("libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        return None
 
 
 def _rss_mb() -> float:
