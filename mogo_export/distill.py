@@ -47,16 +47,36 @@ def guided_kl(student: tmodel.RQHCTransformer, teacher: tmodel.RQHCTransformer, 
     valid = valid.to(text.dtype)
     zero = torch.zeros_like(text)
     with torch.no_grad():
-        cond, uncond = teacher(text, tokens_in), teacher(zero, tokens_in)
+        # float(): under bf16 autocast the logits come out in bf16; the distributions are taken in float32
+        cond, uncond = teacher(text, tokens_in).float(), teacher(zero, tokens_in).float()
         targets = [torch.log_softmax(uncond + guidance * (cond - uncond), -1)]
         if uncond_weight:
             targets.append(torch.log_softmax(uncond, -1))
     rows = [(text, targets[0], 1.0)] + ([(zero, targets[1], uncond_weight)] if uncond_weight else [])
     loss = text.new_zeros(())
     for t, target, weight in rows:
-        kl = F.kl_div(torch.log_softmax(student(t, tokens_in), -1), target, log_target=True, reduction="none").sum(-1)
+        kl = F.kl_div(torch.log_softmax(student(t, tokens_in).float(), -1), target, log_target=True,
+                      reduction="none").sum(-1)
         loss = loss + weight * (kl * valid).sum() / valid.sum()
     return loss
+
+
+def native_bf16(device: torch.device, cpu_flags: str | None = None) -> bool:
+    """Whether `device` computes bfloat16 natively: a CUDA device that says so, or a CPU whose flags (Linux's
+    /proc/cpuinfo, or `cpu_flags`) list AVX-512 BF16, AMX BF16 or ARM's BF16. Elsewhere torch emulates bf16, slower
+    than float32."""
+    if device.type == "cuda":
+        return torch.cuda.is_bf16_supported()
+    if device.type != "cpu":
+        return False
+    if cpu_flags is None:
+        try:
+            with open("/proc/cpuinfo") as f:
+                cpu_flags = f.read()
+        except OSError:
+            return False
+    words = set(cpu_flags.lower().split())
+    return bool(words & {"avx512_bf16", "amx_bf16", "bf16"})
 
 
 def is_distilled(out: Path) -> bool:
@@ -94,14 +114,18 @@ def distill_transformer(data: Path, out: Path, preset: str, seed: int = 0, progr
     opt = torch.optim.AdamW(student.parameters(), lr=plan.lr, betas=(0.9, 0.99), weight_decay=0.0)
     rng, by_length = np.random.default_rng(seed), d.by_length
     torch.manual_seed(seed)
-    bar = tqdm(range(plan.steps), desc=f"distil guidance {plan.guidance:g}", disable=not progress)
+    device = next(student.parameters()).device
+    precision = "bf16" if plan.bf16 and native_bf16(device) else "fp32"
+    bar = tqdm(range(plan.steps), desc=f"distil guidance {plan.guidance:g} ({precision})", disable=not progress)
     t0 = time.perf_counter()
     for _ in bar:
         examples = clip_examples(d.seqs, d.caps, emb, rng, plan.batch_size, cfg, by_length, none)
         if d.timelines and plan.windows:
             examples += window_examples(d.timelines, emb, rng, plan.windows, cfg, streaming, none_tl)
         text, tokens_in, _, lengths = (to_model(student, t) for t in pad_examples(examples, cfg)[:4])
-        loss = guided_kl(student, teacher, text, tokens_in, lengths, plan.guidance, plan.uncond_weight)
+        # the weights and the optimizer stay float32; autocast runs the matrix products in bf16
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):
+            loss = guided_kl(student, teacher, text, tokens_in, lengths, plan.guidance, plan.uncond_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(student.parameters(), 1.0)
@@ -109,8 +133,8 @@ def distill_transformer(data: Path, out: Path, preset: str, seed: int = 0, progr
         bar.set_postfix(kl=f"{loss.item():.4f}")
     # no timing in the meta: a resumed run must write the uninterrupted run's file (tests/export/test_train_kill9.py)
     meta = {**payload["meta"], "distilled": {"guidance": plan.guidance, "steps": plan.steps, "lr": plan.lr,
-                                             "uncond_weight": plan.uncond_weight}}
+                                             "uncond_weight": plan.uncond_weight, "precision": precision}}
     saved = save_checkpoint(path, "transformer", cfg, student, payload["train"], meta)
     if progress:
-        print(f"distilled guidance {plan.guidance:g} into {path} in {time.perf_counter() - t0:.0f} s")
+        print(f"distilled guidance {plan.guidance:g} ({precision}) into {path} in {time.perf_counter() - t0:.0f} s")
     return saved

@@ -7,7 +7,7 @@ import numpy as np
 import torch
 
 from mogo_export.checkpoint import build_from_checkpoint, read_checkpoint
-from mogo_export.distill import TEACHER, guided_kl, is_distilled
+from mogo_export.distill import TEACHER, guided_kl, is_distilled, native_bf16
 from mogo_export.examples import caption_table, clip_examples, load_token_data, pad_examples
 from mogo_export.models import transformer as tmodel
 from mogo_export.presets import get_preset
@@ -74,3 +74,25 @@ def test_a_distilled_bundle_samples_with_one_row(tiny_bundle):
     gen = MotionGenerator(tiny_bundle, variant="fp32")
     motion = gen.generate("a person walks forward", seed=1)               # the defaults: one row per token
     assert len(motion.tokens) > 0
+
+
+def test_bf16_only_where_the_device_computes_it_natively():
+    cpu = torch.device("cpu")
+    assert native_bf16(cpu, "flags\t\t: fpu sse2 avx2 avx512f avx512_bf16 vnni")
+    assert native_bf16(cpu, "flags\t\t: fpu avx2 amx_bf16 amx_tile")
+    assert native_bf16(cpu, "Features\t: fp asimd evtstrm bf16 i8mm")                  # ARM
+    assert not native_bf16(cpu, "flags\t\t: fpu sse2 avx2 avx512f avx512bw avx512_vnni")   # emulated: slower
+    assert not native_bf16(torch.device("meta"), "flags: avx512_bf16")
+
+
+def test_the_guided_kl_in_bf16_autocast_is_float32_and_close(tiny_checkpoints):
+    """Under autocast the products run in bf16; the distributions and the loss stay float32 and near fp32's."""
+    student, teacher, cfg = _models(tiny_checkpoints)
+    text, tokens, lengths = _batch(cfg)
+    with torch.no_grad():
+        fp32 = guided_kl(student, teacher, text, tokens, lengths, guidance=2.0, uncond_weight=1.0)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            bf16 = guided_kl(student, teacher, text, tokens, lengths, guidance=2.0, uncond_weight=1.0)
+    print(f"guided KL fp32 {float(fp32):.5f}, bf16 autocast {float(bf16):.5f}")
+    assert bf16.dtype == torch.float32 and float(fp32) > 0
+    assert abs(float(bf16) - float(fp32)) < 0.1 * float(fp32)
