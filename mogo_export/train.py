@@ -32,7 +32,7 @@ from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
 from .data.dataset import MotionDataset
 from .data.timelines import read_timelines
 from .distill import distill_transformer
-from .distributed import SINGLE, Group
+from .distributed import SINGLE, Group, native_bf16
 from .examples import (ROOT, caption_table, clip_examples, load_token_data, pad_examples, to_model,
                        window_examples)
 from .models import transformer as tmodel
@@ -297,7 +297,8 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
             "preset": preset, "vq_step": vq_payload["train"]["step"],
             # trained for endless streams only when the data has timelines to learn prompt switches from
             **({"streaming": {"window": streaming.window, "refresh": streaming.refresh}} if n_window else {})}
-    bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc="transformer",
+    precision = meta["train_precision"] = "bf16" if sched.bf16 and native_bf16(group.device) else "fp32"
+    bar = tqdm(range(start, sched.steps), initial=start, total=sched.steps, desc=f"transformer ({precision})",
                disable=not (progress and group.is_main))
     t0, ntok = time.perf_counter(), 0
     for step in bar:
@@ -312,7 +313,8 @@ def train_transformer(data: Path, out: Path, preset: str = DEFAULT, seed: int = 
             if windows:
                 batches.append(pad_examples(windows, cfg))
         batches = [tuple(to_model(model, t) for t in b) for b in batches]
-        parts = net(batches)
+        with torch.autocast(group.device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):
+            parts = net(batches)
         # the mean over every target of the global batch (of this process's slice: its share of that mean)
         count = group.sum(sum(st["count"] for _, st in parts))
         loss = sum(part * st["count"] for part, st in parts) / count

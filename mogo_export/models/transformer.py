@@ -239,7 +239,7 @@ class RQHCTransformer(nn.Module):
         Returns (loss, {"acc": (), "acc_per_level": (L,), "count": () the (step, level) pairs averaged over}).
         """
         B, S, L = tokens_in.shape
-        logits = self(text_emb, tokens_in, control)  # (B, S, L, K+1)
+        logits = self(text_emb, tokens_in, control).float()  # (B, S, L, K+1); bf16 under autocast
         valid = torch.arange(S, device=tokens_in.device) <= lengths.unsqueeze(1)  # (B, S)
         valid = valid.unsqueeze(-1).expand(B, S, L)  # (B, S, L)
         tgt = targets.masked_fill(~valid, 0)  # PAD is not a class of the head

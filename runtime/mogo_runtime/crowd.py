@@ -277,17 +277,17 @@ class Crowd:
             return policy.feed(np.stack([plans[m][1][k] for m in members])) if controlled else None
 
         per_call = max(1, SCRATCH_ROWS // policy.rows)
-        for size, start in [(size, start) for size in sorted(set(sizes[sizes > 1].tolist()))
-                            for start in range(0, int(np.sum(sizes == size)), per_call)]:
-            group = np.flatnonzero(sizes == size)[start:start + per_call]
-            scratch = self._scratch(len(group) * policy.rows)
-            emb = np.concatenate([chars[m].context.rows_emb for m in group])
-            for k in range(size - 1):
-                self.backend.step_in_place(emb, policy.feed(np.stack([plans[m][0][k] for m in group])),
-                                           np.full(len(emb), k, np.int64), scratch, control_at(group, k))
-            group_rows = (slots[group][:, None] * policy.rows + np.arange(policy.rows)).ravel()
-            for c, fresh in zip(self.cache, scratch):
-                c[group_rows] = fresh
+        for size in sorted(set(sizes[sizes > 1].tolist())):
+            members = np.flatnonzero(sizes == size)
+            for group in [members[i:i + per_call] for i in range(0, len(members), per_call)]:
+                scratch = self._scratch(len(group) * policy.rows)
+                emb = np.concatenate([chars[m].context.rows_emb for m in group])
+                for k in range(size - 1):
+                    self.backend.step_in_place(emb, policy.feed(np.stack([plans[m][0][k] for m in group])),
+                                               np.full(len(emb), k, np.int64), scratch, control_at(group, k))
+                group_rows = (slots[group][:, None] * policy.rows + np.arange(policy.rows)).ravel()
+                for c, fresh in zip(self.cache, scratch):
+                    c[group_rows] = fresh
         emb = np.concatenate([c.context.rows_emb for c in chars])
         last = policy.feed(np.stack([tokens[-1] for tokens, _, _ in plans]))
         position = policy.feed(np.array([c.context.cached for c in chars], np.int64))

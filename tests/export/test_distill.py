@@ -7,7 +7,8 @@ import numpy as np
 import torch
 
 from mogo_export.checkpoint import build_from_checkpoint, read_checkpoint
-from mogo_export.distill import TEACHER, guided_kl, is_distilled, native_bf16
+from mogo_export.distill import TEACHER, guided_kl, is_distilled
+from mogo_export.distributed import native_bf16
 from mogo_export.examples import caption_table, clip_examples, load_token_data, pad_examples
 from mogo_export.models import transformer as tmodel
 from mogo_export.presets import get_preset

@@ -256,3 +256,28 @@ def test_streaming_windows_stay_inside_one_timed_segment():
     split = examples.window_examples([(seq, segments)], emb, np.random.default_rng(0), 400, cfg,
                                      Streaming(window=3, refresh=5, windows=4), [controls])
     assert all(np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2]) for a, b in zip(windows, split))
+
+
+def test_a_bf16_schedule_trains_in_bf16_only_where_the_cpu_computes_it(tiny_checkpoints, tmp_path, one_torch_thread):
+    """Schedule(bf16=True): the transformer's forward passes run under bf16 autocast where the device computes bf16
+    natively (the checkpoint says which ran), and give other weights than float32 from the same seed."""
+    import shutil
+
+    from mogo_export.distributed import native_bf16
+
+    data = tiny_checkpoints.parent / "data"
+    weights = {}
+    for bf16 in (False, True):
+        out = tmp_path / str(bf16)
+        out.mkdir()
+        for name in ("vq.pt", "tokens.npz", "captions.npz"):
+            shutil.copy(tiny_checkpoints / name, out / name)
+        schedule = train.Schedule(steps=6, batch_size=4, lr=1e-3, warmup=2, val_every=6, ckpt_every=6, bf16=bf16)
+        payload = read_checkpoint(train.train_transformer(data, out, "tiny", progress=False, schedule=schedule),
+                                  "transformer")
+        native = bf16 and native_bf16(torch.device("cpu"))
+        assert payload["meta"]["train_precision"] == ("bf16" if native else "fp32")
+        assert all(torch.isfinite(w).all() for w in payload["model"].values())
+        weights[bf16] = payload["model"]
+    same = all(torch.equal(weights[False][k], weights[True][k]) for k in weights[False])
+    assert same != native_bf16(torch.device("cpu"))
