@@ -48,16 +48,16 @@ def guided_kl(student: tmodel.RQHCTransformer, teacher: tmodel.RQHCTransformer, 
     valid = valid.to(text.dtype)
     zero = torch.zeros_like(text)
     with torch.no_grad():
-        # float(): under bf16 autocast the logits come out in bf16; the distributions are taken in float32
-        cond, uncond = teacher(text, tokens_in).float(), teacher(zero, tokens_in).float()
+        full = tmodel.at_least_float32        # bf16 logits under autocast; the distributions in float32
+        cond, uncond = full(teacher(text, tokens_in)), full(teacher(zero, tokens_in))
         targets = [torch.log_softmax(uncond + guidance * (cond - uncond), -1)]
         if uncond_weight:
             targets.append(torch.log_softmax(uncond, -1))
     rows = [(text, targets[0], 1.0)] + ([(zero, targets[1], uncond_weight)] if uncond_weight else [])
     loss = text.new_zeros(())
     for t, target, weight in rows:
-        kl = F.kl_div(torch.log_softmax(student(t, tokens_in).float(), -1), target, log_target=True,
-                      reduction="none").sum(-1)
+        kl = F.kl_div(torch.log_softmax(tmodel.at_least_float32(student(t, tokens_in)), -1), target,
+                      log_target=True, reduction="none").sum(-1)
         loss = loss + weight * (kl * valid).sum() / valid.sum()
     return loss
 

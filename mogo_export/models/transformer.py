@@ -141,6 +141,12 @@ class Block(nn.Module):
         return x, k, v  # (N, S, C), (N, H, P+S, hd) x 2
 
 
+def at_least_float32(x: torch.Tensor) -> torch.Tensor:
+    """Logits made under bf16 autocast, as float32 for their softmax and loss; float32 and float64 (the tests'
+    exact runs) stay as they are."""
+    return x.float() if x.dtype in (torch.bfloat16, torch.float16) else x
+
+
 class RQHCTransformer(nn.Module):
 
     def __init__(self, cfg: TransformerConfig):
@@ -239,7 +245,7 @@ class RQHCTransformer(nn.Module):
         Returns (loss, {"acc": (), "acc_per_level": (L,), "count": () the (step, level) pairs averaged over}).
         """
         B, S, L = tokens_in.shape
-        logits = self(text_emb, tokens_in, control).float()  # (B, S, L, K+1); bf16 under autocast
+        logits = at_least_float32(self(text_emb, tokens_in, control))  # (B, S, L, K+1)
         valid = torch.arange(S, device=tokens_in.device) <= lengths.unsqueeze(1)  # (B, S)
         valid = valid.unsqueeze(-1).expand(B, S, L)  # (B, S, L)
         tgt = targets.masked_fill(~valid, 0)  # PAD is not a class of the head
