@@ -148,13 +148,15 @@ BASE = Preset(
     vq=dict(width=128, code_dim=128, downsample=4, depth=2, num_levels=4, codebook_size=512, mse_loss=0.1,
             root_loss=5.0),
     # matched to the VQ above (4 levels x 512 codes).
-    # dropout 0.1 (with the 1,300-step schedule below): 700 steps without dropout at lr 1e-3 take half the time
-    # (9.1 min), but the int8 bundle's action accuracy drops from 0.899 to 0.871 (0.903 -> 0.886 in fp32)
-    # (README, "Training and exporting")
+    # dropout 0: with 68 families the 2,600 steps below underfit, and dropout only slowed learning. Two trainings
+    # each (benchmarks/NOTES.md, "dropout"), distilled, torch rows: held-out whole clips 0.905 and 0.893 without
+    # against 0.862, 0.865 and 0.879 with 0.1, with spans 0.894 / 0.902 against 0.882 / 0.885 / 0.887; and a
+    # step is cheaper (the transformer 1,596 -> 1,480 s here). (With 21 families and 700 steps, dropout 0.1 had
+    # been worth 0.871 -> 0.899 in int8: README, "Training and exporting".)
     # control_horizon 5: the wanted root trajectory of the next second (5 tokens of 0.2 s), as motion matching's
     # trajectory features look ~1 s ahead
     transformer=dict(num_levels=4, codebook_size=512, d_model=256, n_layers=4, n_heads=4, max_rel_dist=64,
-                     dropout=0.1, cond_drop_prob=0.1, control_horizon=5),
+                     dropout=0.0, cond_drop_prob=0.1, control_horizon=5),
     # 6,000 steps at 2e-3 (~500 s alone on 2 cores); 2,000 were enough for 21 families (see root_loss above)
     vq_schedule=Schedule(steps=6000, batch_size=32, lr=2e-3, window=64),
     # 2,600 steps (1,937-2,050 s alone on 2 cores): with 67 action families 1,300 steps (977 s) judged 0.596 of
