@@ -4,9 +4,10 @@
 
 Writes REF/wire.json:
   streams   a crowd's stream (tests/runtime/test_wire.py crowd_stream: joins, a prompt switch, a leaver) on the
-            compact variant of the portable toy, and a steered one (walk_to, so WARP records) on the control toy's
-            portable variant: the messages (base64), the decoder id, and per client chunk what each message gave
-            (character, first frame, frames) and every character's joints as the Python client decodes them
+            compact variant of the portable toy, a steered one (walk_to, so WARP records) on the control toy's
+            portable variant, and a character joined late (test_wire.py late_stream: START and SYNC) on each: the
+            messages (base64), the decoder id, and per client chunk what each message gave (character, first
+            frame, frames) and every character's joints as the Python client decodes them
   broken    the broken streams of test_wire.py's refusal test and a few more, each with the message the Python
             client refuses it with
   cut       a message that ends inside a record, and read_message's message for it
@@ -72,7 +73,7 @@ BROKEN = [
     ("bad magic", lambda ms, L: [b"\x01XXXX" + ms[0][5:]] + ms[1:]),
     ("wrong version", lambda ms, L: [ms[0][:5] + b"\x09" + ms[0][6:]] + ms[1:]),
     ("wrong decoder id", lambda ms, L: [ms[0][:-8] + b"\x00" * 8] + ms[1:]),
-    ("unknown record type", lambda ms, L: ms[:2] + [b"\x07" + ms[2][1:]]),
+    ("unknown record type", lambda ms, L: ms[:2] + [b"\x09" + ms[2][1:]]),
     ("unknown event", lambda ms, L: ms[:2] + [struct.pack("<BIIBH", 3, 0, 1, 99, 0)]),
     ("non-UTF-8 text", lambda ms, L: ms[:2] + [struct.pack("<BIIBH", 3, 0, 1, 2, 2) + b"\xff\xfe"]),
     ("code outside codebook",
@@ -86,7 +87,19 @@ BROKEN = [
     ("started twice", lambda ms, L: ms[:2] + [struct.pack("<BIIBH", 3, 0, 0, 1, 0)]),
     ("records after END",
      lambda ms, L: ms[:2] + [struct.pack("<BIIBH", 3, 0, 1, 5, 0) + struct.pack("<BIIBH", 3, 0, 1, 2, 0)]),
+    # a SYNC that does not fit the client: a decoder state of another size, a window of the wrong length, none of
+    # the eases a warp always has, a number that is not finite
+    ("SYNC state size", lambda ms, L: ms[:2] + [wire.encode(_sync(L, state=3))]),
+    ("SYNC window", lambda ms, L: ms[:2] + [wire.encode(_sync(L, rows=0))]),
+    ("SYNC no eases", lambda ms, L: ms[:2] + [wire.encode(_sync(L))[:13] + b"\x00" + wire.encode(_sync(L))[14:]]),
+    ("SYNC non-finite", lambda ms, L: ms[:2] + [wire.encode(_sync(L, angle=float("inf")))]),
 ]
+
+
+def _sync(levels: int, state: int = 0, rows: int = 1, angle: float = 0.0) -> wire.Sync:
+    """A SYNC of character 0 at token 1, one token pending (the broken streams' second message has token 0)."""
+    return wire.Sync(0, 1, min(rows, 1), np.zeros((rows, levels), np.int64), np.zeros(state, np.float32),
+                     np.array([angle, *[0.0] * 7]), None, (False, False), False, ((0, *[0.0] * 8, 0),))
 
 
 def broken(bundle: Path, variant: str, messages: list[bytes], levels: int) -> list[dict]:
@@ -111,11 +124,15 @@ def main(argv=None) -> int:
     ap.add_argument("--steered", type=Path, required=True, help="a toy bundle with control and the portable variant")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    crowd_stream = _test_wire().crowd_stream
+    test_wire = _test_wire()
+    crowd_stream, late_stream = test_wire.crowd_stream, test_wire.late_stream
     gen = MotionGenerator(args.compact, variant="compact")
     messages, _ = crowd_stream(gen)
     short, _ = crowd_stream(gen, ticks=6)
-    steered, _ = crowd_stream(MotionGenerator(args.steered, variant="portable"), ticks=30, steer=True)
+    steered_gen = MotionGenerator(args.steered, variant="portable")
+    steered, _ = crowd_stream(steered_gen, ticks=30, steer=True)
+    late, _ = late_stream(gen, 9)
+    late_steered, _ = late_stream(steered_gen, 12, steer=True)
     L = gen.dims.num_levels
     cut = short[1][:-1]
     try:
@@ -125,7 +142,9 @@ def main(argv=None) -> int:
         cut_error = str(e)
     ref = {
         "streams": [stream("crowd", args.compact, "compact", messages, (1, 3)),
-                    stream("steered", args.steered, "portable", steered)],
+                    stream("steered", args.steered, "portable", steered),
+                    stream("late", args.compact, "compact", late, (1, 3)),
+                    stream("late steered", args.steered, "portable", late_steered)],
         "broken": broken(args.compact, "compact", short, L),
         "cut": {"message": _b64([cut])[0], "levels": L, "error": cut_error},
     }

@@ -2,8 +2,8 @@
 // portable toy's compact variant, started here and stopped when the file ends, however it ends (test/until_eof.py):
 // clients get their characters' tokens, each the next one, equal to those of a character generated alone
 // (test/make_serve_reference.py); the frames the client decodes are the Python decode-only client's; a client
-// that reconnects, after a pause or mid-stream, loses and repeats no token; a wrong token and a foreign origin
-// are refused.
+// that reconnects, after a pause or mid-stream, loses and repeats no token; one that joins a session afresh decodes
+// from a SYNC; a wrong token and a foreign origin are refused.
 
 import test, { after, before } from 'node:test';
 import assert from 'node:assert/strict';
@@ -140,6 +140,39 @@ test("the frames the client decodes are the Python decode-only client's", { time
   const worst = maxAbsDiff(joints.slice(0, want * frameSize), ref.joints.data);
   report(`serve: ${want} frames (${ref.joints.tokens} tokens) decoded from the server's stream by the JS client: `
     + `joints max |diff| ${worst.toExponential(1)} m from Python's decode-only client`);
+  assert.ok(worst <= 1e-5, `joints differ from Python's by ${worst} m`);
+});
+
+test("a client that joins a session afresh decodes each character from its SYNC, as Python's client does", {
+  timeout: 120_000 }, async () => {
+  const { prompt, seed } = ref.prompts[0];
+  const a = await ServerClient.connect(server.url, TOKEN, options);
+  const ident = await a.add(prompt, { seed });
+  await tokensOf(a, new Map([[ident, []]]), 3);
+  await a.close();
+  // a page reloaded: its decoder is new, it knows only the session
+  const b = await ServerClient.connect(server.url, TOKEN, { ...options, bundle: ref.bundle, variant: ref.variant,
+    session: a.session });
+  assert.deepEqual(b.welcome.synced, [ident]);
+  const frameSize = b.decoder.skeleton.parents.length * 3, want = ref.joints.frames;
+  let first = null, next = null, compared = 0, worst = 0;
+  while (compared < 8 * ref.joints.frames / ref.joints.tokens) {
+    const [i, f] = await b.next();
+    assert.equal(i, ident);
+    const n = f.joints.length / frameSize;
+    if (first === null) first = f.index;
+    else assert.equal(f.index, next, 'frames follow one another from the SYNC on');
+    next = f.index + n;
+    assert.ok(next <= want, `the SYNC came at frame ${first}, past the ${want} frames of the reference`);
+    const mine = f.joints, theirs = ref.joints.data.slice(f.index * frameSize, next * frameSize);
+    worst = Math.max(worst, maxAbsDiff(mine, theirs));
+    compared += n;
+  }
+  await b.close();
+  await b.decoder.release();
+  assert.ok(first > 0, 'it joined the character where it was, not from its start');
+  report(`serve: a client joining a session afresh got its character as a SYNC at frame ${first}; ${compared} frames `
+    + `decoded from there: joints max |diff| ${worst.toExponential(1)} m from Python's decode-only client's`);
   assert.ok(worst <= 1e-5, `joints differ from Python's by ${worst} m`);
 });
 

@@ -13,7 +13,7 @@ import { DECODING_GRAPHS } from '../src/bundle/sections.js';
 import { MotionDecoder, OrtBackend } from '../src/engine.js';
 import { MotionClient } from '../src/wire/client.js';
 import {
-  END, Event, Hello, Joints, PROMPT, RecordReader, Tick, Tokens, Warp, WireError, encode, readMessage,
+  END, Event, Hello, Joints, PROMPT, RecordReader, Sync, Tick, Tokens, Warp, WireError, encode, readMessage,
 } from '../src/wire/format.js';
 import { maxAbsDiff, readReference, report } from './reference.mjs';
 
@@ -55,7 +55,8 @@ test("a decode-only client makes the Python client's joints, with the decoding g
     }
   }
   report(`token streams: ${ref.streams.length} streams (a crowd on compact, chunk 1 and 3; a steered crowd with WARP `
-    + `records on portable), ${frames} frames decoded from Python's messages: joints max |diff| ${worst.toExponential(1)} m`);
+    + 'records on portable; a character joined late, from its SYNC, on each), '
+    + `${frames} frames decoded from Python's messages: joints max |diff| ${worst.toExponential(1)} m`);
   assert.ok(worst <= 1e-5, `joints differ from Python's by ${worst} m`);
 });
 
@@ -71,6 +72,11 @@ test("a steered character's WARP records are what places it", async () => {
 });
 
 test('records cut anywhere are reassembled, and encode writes the bytes Python wrote', () => {
+  for (const s of [streams.late, streams['late steered']]) {   // a SYNC's bytes, decoded and written again
+    const late = Buffer.concat(messagesOf(s)), records = new RecordReader().feed(late);
+    assert.ok(records[2] instanceof Sync && records[2].rows > 0, `${s.name}: START then SYNC after the HELLO`);
+    assert.deepEqual(Buffer.concat(records.map(encode)), late);
+  }
   const data = Buffer.concat(messagesOf(streams.crowd)), whole = new RecordReader().feed(data);
   assert.deepEqual(Buffer.concat(whole.map(encode)), data);
   const reader = new RecordReader(), records = [];
@@ -86,7 +92,11 @@ test('records round-trip; what the wire cannot carry is refused', () => {
   const records = [new Hello(2, 16, 4, Uint8Array.from([1, 2, 3, 4, 5, 6, 7, 8])),
     new Tokens(3, 9, Int32Array.from([1, 2, 15, 0]), 2), new Event(3, 9, PROMPT, '\ufeffa person waves ✋'),
     new Event(3, 11, END), new Warp(3, 44, 4, [1.5, -2], 0.25, [0.01, 0]),
-    new Joints(3, 44, Float32Array.from([0.5, 1, -2, 0, 0.25, 3]), 2), new Tick(2n ** 40n + 7n, 1234.5)];
+    new Joints(3, 44, Float32Array.from([0.5, 1, -2, 0, 0.25, 3]), 2), new Tick(2n ** 40n + 7n, 1234.5),
+    new Sync(3, 12, 2, Int32Array.from([0, 1, 2, 3, 4, 5]), 2, Float32Array.from([-1, 0.5, 2]),
+      [0, 1, 2, 3, 4, 5, 6, 7].map((x) => x / 3), [[0.1, 0.2], [-0.3, 0.4]], [true, false], true,
+      [{ start: 0, phi: 0, tx: 0, tz: 0, turn: 0, sx: 0, sz: 0, px: 0, pz: 0, frames: 0 },
+        { start: 40, phi: 0.5, tx: 1, tz: -1, turn: 0.25, sx: 0.01, sz: 0, px: 2, pz: 3, frames: 12 }])];
   const back = readMessage(Buffer.concat(records.map(encode)));
   assert.deepEqual(back, records);   // the BOM is text, kept as Python keeps it
   assert.throws(() => encode(new Tokens(0, 0, new Int32Array(0), 2)),
@@ -133,6 +143,7 @@ test("a broken stream is refused with the Python client's message", async () => 
     await c.release();
   }
   for (const name of ['lost token', 'repeated token', 'no HELLO', 'bad magic', 'wrong version', 'wrong decoder id',
-    'unknown record type', 'non-UTF-8 text', 'code outside codebook', 'non-finite WARP']) assert.ok(names.includes(name), name);
+    'unknown record type', 'non-UTF-8 text', 'code outside codebook', 'non-finite WARP', 'SYNC state size',
+    'SYNC window', 'SYNC no eases', 'SYNC non-finite']) assert.ok(names.includes(name), name);
   report(`token streams: ${names.length} broken streams refused with Python's messages, word for word`);
 });

@@ -130,6 +130,47 @@ def test_a_reconnecting_client_misses_and_repeats_nothing(gen):
     np.testing.assert_array_equal(np.stack(tokens[:30]), reference_tokens(gen, "a person walks forward", 1, 30))
 
 
+def test_a_client_that_lost_its_decoder_joins_where_the_character_is(gen, portable_toy_bundle):  # noqa: F811
+    """A new client of a session (a page reloaded) names no character: it gets each as a START and a SYNC of where it
+    is now; a client away longer than the replay keeps gets a SYNC. Either way its frames from there are the crowd's
+    frames of the same numbers, bit for bit."""
+    async def frames_of(client, ident, n):
+        out = []
+        while sum(len(j) for _, j in out) < n:
+            i, frames = await asyncio.wait_for(client.next(), 30)
+            if i == ident:
+                out.append((frames.index, frames.joints))
+        return out
+
+    async def main():
+        server, url, stop, task = await running(gen, Limits(replay_tokens=5))
+        a = await ServerClient.connect(url, TOKEN, bundle=portable_toy_bundle, variant="compact")
+        ident = await a.add("a person walks forward", seed=1)
+        first = await frames_of(a, ident, 12)
+        await a.close()
+        await asyncio.sleep(0.5)             # ~50 ticks: more than the 5 kept
+        welcome = await a.reconnect()
+        assert welcome["synced"] == [ident] and welcome["characters"][str(ident)] > 12
+        away = await frames_of(a, ident, 12)
+        assert a.next_seq[ident] > welcome["characters"][str(ident)]
+        await a.close()
+        b = await ServerClient.connect(url, TOKEN, bundle=portable_toy_bundle, variant="compact", session=a.session)
+        assert b.welcome["synced"] == [ident]
+        fresh = await frames_of(b, ident, 12)
+        await b.close()
+        stop.set()
+        await task
+        return first, away, fresh
+    first, away, fresh = asyncio.run(main())
+    crowd = Crowd(gen, chunk=1)
+    ch = crowd.add("a person walks forward", seed=1)
+    want = np.concatenate([crowd.tick()[ch].joints for _ in range(fresh[-1][0] // gen.dims.downsample + 1)])
+    # each joined where the character was (b may repeat a's last frames: the tokens a SYNC leaves pending)
+    assert away[0][0] >= first[-1][0] + 4 * gen.dims.downsample and fresh[0][0] > away[0][0]
+    for index, joints in first + away + fresh:
+        np.testing.assert_array_equal(joints, want[index:index + len(joints)])
+
+
 def test_sessions_change_only_on_the_tick_thread(gen):
     """The tick thread iterates the sessions while the event loop welcomes clients: a session registered on the
     loop made the load test's server fail with "dictionary changed size during iteration"."""

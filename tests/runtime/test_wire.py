@@ -5,7 +5,7 @@ import struct
 
 import numpy as np
 import pytest
-from toy_bundle import control_toy_bundle, portable_toy_bundle  # noqa: F401  (fixtures)
+from toy_bundle import build_toy_bundle, control_toy_bundle, portable_toy_bundle  # noqa: F401  (fixtures)
 
 from mogo_runtime import MotionGenerator
 from mogo_runtime.bundle.folder import Bundle
@@ -129,7 +129,7 @@ def test_a_decode_only_client_needs_only_the_decoding_graphs(portable_toy_bundle
     (lambda ms, L: [b"\x01XXXX" + ms[0][5:]] + ms[1:], "not a mogo token stream"),
     (lambda ms, L: [ms[0][:5] + b"\x09" + ms[0][6:]] + ms[1:], "version 9"),
     (lambda ms, L: [ms[0][:-8] + b"\x00" * 8] + ms[1:], "generated for decoder"),
-    (lambda ms, L: ms[:2] + [b"\x07" + ms[2][1:]], "unknown record type 7"),
+    (lambda ms, L: ms[:2] + [b"\x09" + ms[2][1:]], "unknown record type 9"),
     (lambda ms, L: ms[:2] + [struct.pack("<BIIBH", 3, 0, 1, 99, 0)], "unknown event 99"),
     (lambda ms, L: ms[:2] + [struct.pack("<BIIBH", 3, 0, 1, 2, 2) + b"\xff\xfe"], "not UTF-8"),
     (lambda ms, L: ms[:2] + [struct.pack("<BIIB", 2, 0, 1, 1) + struct.pack(f"<{L}H", 9999, *[0] * (L - 1))], "outside the codebook"),
@@ -154,10 +154,102 @@ def test_every_record_round_trips():
     records = [wire.Hello(2, 16, 4, bytes(range(8))), wire.Tokens(3, 9, np.array([[1, 2], [15, 0]])),
                wire.Event(3, 9, wire.PROMPT, "\ufeffa person waves ✋"), wire.Event(3, 11, wire.END),
                wire.Warp(3, 44, 4, (1.5, -2.0), 0.25, (0.01, 0.0)),
-               wire.Joints(3, 44, np.arange(6, dtype=np.float32).reshape(1, 2, 3)), wire.Tick(2 ** 40 + 7, 1234.5)]
+               wire.Joints(3, 44, np.arange(6, dtype=np.float32).reshape(1, 2, 3)), wire.Tick(2 ** 40 + 7, 1234.5),
+               wire.Sync(3, 12, 2, np.arange(10).reshape(5, 2), np.linspace(-1, 1, 7, dtype=np.float32),
+                         np.arange(8) / 3.0, np.array([[0.1, 0.2], [-0.3, 0.4]]), (True, False), True,
+                         ((0, *[0.0] * 8, 0), (40, *np.arange(8) / 7.0, 12))),
+               wire.Sync(4, 0, 0, np.zeros((0, 2), np.int64), np.zeros(0, np.float32), np.zeros(8), None,
+                         (False, False), False, ((0, *[0.0] * 8, 0),))]
     back = wire.read_message(b"".join(map(wire.encode, records)))
     assert len(back) == len(records)
     for a, b in zip(records, back):
         assert type(a) is type(b)
         for k, v in vars(a).items():
             np.testing.assert_array_equal(np.asarray(v), np.asarray(getattr(b, k)))
+
+
+def late_stream(gen, late: int, ticks: int = 30, steer: bool = False):
+    """A crowd character's stream as a client that joins it after `late` ticks gets it (a tap made then: its START
+    and SYNC) -> (the messages, the crowd's frames as (first frame, joints))."""
+    crowd = Crowd(gen)
+    c = crowd.add(PROMPTS[0], seed=3)
+    if steer:
+        c.walk_to((2.0, 1.0))
+    messages, made, tap = [wire.encode(wire.hello_for(gen.bundle.manifest, gen.variant))], [], None
+    for t in range(ticks):
+        if t == 18:
+            c.set_prompt(PROMPTS[1])
+        frames = crowd.tick()
+        if c in frames:
+            made.append((frames[c].index, frames[c].joints))
+        if t == late:
+            tap = CharacterTap(c, 0)
+            records = tap.read()
+            assert isinstance(records[0], wire.Event) and isinstance(records[1], wire.Sync)
+            messages.append(b"".join(map(wire.encode, records)))
+        elif tap is not None:
+            messages.append(b"".join(map(wire.encode, tap.read())))
+    return messages, made
+
+
+def joined_late(gen, bundle, variant, late: int, chunk: int = 1, steer: bool = False):
+    """`late_stream` read by a decode-only client -> (its first frame, its joints, the crowd's joints from there)."""
+    messages, made = late_stream(gen, late, steer=steer)
+    client, got = MotionClient(bundle, variant=variant, chunk=chunk), []
+    for m in messages:
+        got.extend((f.index, f.joints) for f in client.receive(m).values())
+    first = got[0][0]
+    return first, np.concatenate([j for _, j in got]), np.concatenate([j for _, j in made])[first - made[0][0]:]
+
+
+@pytest.mark.parametrize("late, chunk", [(5, 1), (9, 3), (14, 4)])
+def test_a_client_that_joins_late_makes_the_generator_s_joints_from_its_sync(gen, portable_toy_bundle, late, chunk):  # noqa: F811
+    first, mine, want = joined_late(gen, portable_toy_bundle, "compact", late, chunk=chunk)
+    assert first <= (late + 1) * gen.dims.downsample and len(mine) >= 40
+    n = min(len(mine), len(want))
+    np.testing.assert_array_equal(mine[:n], want[:n])
+
+
+def test_a_late_join_without_a_decoder_step_graph_decodes_windows_from_its_sync(tmp_path, humanml3d_fixture):
+    bundle = build_toy_bundle(tmp_path, np.load(humanml3d_fixture / "Mean.npy"), portable=True,
+                              with_decoder_step=False)
+    gen = MotionGenerator(bundle, variant="portable")
+    assert gen.bundle.manifest.decoder_state is None
+    first, mine, want = joined_late(gen, bundle, "portable", 21, chunk=2)
+    n = min(len(mine), len(want))
+    assert n >= 20
+    np.testing.assert_array_equal(mine[:n], want[:n])
+
+
+def test_a_steered_character_joined_late_stands_where_the_generator_put_it(control_toy_bundle):  # noqa: F811
+    gen = MotionGenerator(control_toy_bundle, variant="portable")
+    first, mine, want = joined_late(gen, control_toy_bundle, "portable", 12, steer=True)
+    n = min(len(mine), len(want))
+    assert n >= 20 and np.abs(want[0, 0, [0, 2]]).max() > 0.05      # it has moved: not the origin's frames
+    np.testing.assert_array_equal(mine[:n], want[:n])
+
+
+def test_a_sync_that_does_not_fit_the_client_is_refused(gen, portable_toy_bundle):  # noqa: F811
+    """A SYNC is read as untrusted as the rest: its window, pending tokens and decoder state must be what this
+    client's decoder holds at that token."""
+    crowd = Crowd(gen)
+    c = crowd.add(PROMPTS[0], seed=1)
+    for _ in range(7):
+        crowd.tick()
+    good = CharacterTap(c, 0).read()
+    assert isinstance(good[1], wire.Sync) and good[1].seq == 7
+    hello = wire.encode(wire.hello_for(gen.bundle.manifest, gen.variant))
+    s = good[1]
+    for bad, message in [
+            (wire.Sync(**{**vars(s), "window": s.window[1:]}), "window tokens"),
+            (wire.Sync(**{**vars(s), "decoder_state": s.decoder_state[:-1]}), "decoder state values"),
+            (wire.Sync(**{**vars(s), "window": s.window + gen.dims.codebook_size}), "outside the codebook"),
+            (wire.Sync(**{**vars(s), "root": s.root * np.inf}), "non-finite"),
+            (wire.Sync(**{**vars(s), "character": 5}), "before its START")]:
+        client = MotionClient(portable_toy_bundle, variant="compact")
+        with pytest.raises(wire.WireError, match=message):
+            client.receive(hello + wire.encode(good[0]) + wire.encode(bad))
+    no_eases = bytearray(wire.encode(s))
+    no_eases[13] = 0                                  # the eases count (RootWarp always has one)
+    with pytest.raises(wire.WireError, match="0 eases"):
+        wire.read_message(hello + bytes(no_eases))

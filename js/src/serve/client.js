@@ -8,7 +8,9 @@
 //   for (;;) { const [ident, frames] = await c.next(); show(ident, frames.joints); }   // (n, J, 3) flat, metres
 //
 // `nextSeq` holds the next token expected of each character: `reconnect()` hands it to the server, which sends what
-// was missed, so a dropped connection (or a server restarted on its saved state) loses and repeats nothing.
+// was missed, so a dropped connection (or a server restarted on its saved state) loses and repeats nothing. A client
+// that joins a session afresh (`connect(..., { session })`) names no character; the server sends each as a START and
+// a SYNC of where it is now, and the frames go on from there.
 //
 // The socket is the global WebSocket (browsers, Node 22 and later; Node 20 has it behind --experimental-websocket)
 // or the `WebSocket` option. Every message, text or binary, is handled in arrival order, one after another (the
@@ -16,7 +18,7 @@
 // (or frames) are in the queue `next()` reads, as Python's reader does.
 
 import { MotionClient } from '../wire/client.js';
-import { Event, Hello, START, Tokens, readMessage } from '../wire/format.js';
+import { Event, Hello, START, Sync, Tokens, readMessage } from '../wire/format.js';
 
 const CLOSE_SECONDS = 10;   // as websockets' close_timeout: a peer that does not answer a close is left
 
@@ -75,6 +77,7 @@ export class ServerClient {
   constructor(url, token, decoder = null, { origin = null, WebSocket = globalThis.WebSocket } = {}) {
     Object.assign(this, { url, token, decoder, origin });
     this.session = null;
+    this.welcome = {};          // the server's last welcome (its "server" id: which replica; "synced")
     this.nextSeq = new Map();   // character -> the next token expected
     this.records = new Queue();   // [ident, frames] with a decoder, else records; errors where the stream broke
     this.errors = [];           // every ServerError the server sent
@@ -87,12 +90,14 @@ export class ServerClient {
    * bundle/io.js), `next()` gives frames decoded with `variant`'s lookup and decoder, the variant the server runs
    * (`ort`, `providers`, `threads` as MotionClient.load); or pass a loaded MotionClient as `decoder`. `origin`: the
    * Origin header to send, where the WebSocket takes headers (Node's does; a browser sends its page's origin).
+   * `session`: one another client had (a page reloaded): its characters come as a START and a SYNC of where they are.
    */
   static async connect(url, token, { bundle = null, variant = 'fp32', origin = null, decoder = null, ort, providers,
-    threads, WebSocket } = {}) {
+    threads, WebSocket, session = null } = {}) {
     const owned = decoder === null && bundle !== null;
     if (owned) decoder = await MotionClient.load(bundle, { variant, ort, providers, threads });
     const client = new ServerClient(url, token, decoder, { origin, WebSocket });
+    client.session = session;
     try {
       await client.reconnect();
     } catch (e) {
@@ -126,6 +131,7 @@ export class ServerClient {
       throw e;
     }
     this.session = welcome.session;
+    this.welcome = welcome;
     return welcome;
   }
 
@@ -217,6 +223,7 @@ export class ServerClient {
     for (const r of records) {
       if (r instanceof Hello) this.levels = r.levels;
       else if (r instanceof Tokens) this.nextSeq.set(r.character, r.seq + r.count);
+      else if (r instanceof Sync) this.nextSeq.set(r.character, r.seq);   // moved on to where it is now
       else if (r instanceof Event && r.event === START && !this.nextSeq.has(r.character)) {
         this.nextSeq.set(r.character, r.seq);
       }

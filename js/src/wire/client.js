@@ -10,15 +10,18 @@
 //
 // A character's frames are made as a generator makes them (decoding.js FrameMaker, then the root corrections of a
 // steered character replayed from its WARP records), so they are the generating runtime's joints to float32
-// rounding. A game-owned root is not in the stream: each machine puts the frames on the capsule its game replicates.
+// rounding; a character joined late starts from the stream's SYNC of it. A game-owned root is not in the stream:
+// each machine puts the frames on the capsule its game replicates.
 
 import { Bundle } from '../bundle/folder.js';
 import { concat, fileLoader, toHex } from '../bundle/io.js';
 import { oneLine, shown } from '../checks.js';
 import { RootWarp } from '../control/warp.js';
-import { FrameMaker, checkChunk, decodeDue } from '../decoding.js';
+import { FrameMaker, MAX_CHUNK, checkChunk, decodeDue } from '../decoding.js';
 import { MotionDecoder } from '../engine.js';
-import { END, Event, Hello, PROMPT, RecordReader, START, Tokens, Warp, WireError, decoderId } from './format.js';
+import {
+  END, Event, Hello, PROMPT, RecordReader, START, Sync, Tokens, Warp, WireError, decoderId,
+} from './format.js';
 
 export const MAX_CHARACTERS = 100_000;   // characters one client follows at once
 
@@ -110,6 +113,8 @@ export class MotionClient {
         const c = this.#character(record.character);
         await this.#flush(c, out);   // the frames before it were placed without it
         c.warp.plan(record.frame, record.frames, record.pose, record.turn, record.shift);
+      } else if (record instanceof Sync) {
+        this.#sync(record, out);
       } else if (record instanceof Event) {
         await this.#event(record, out);
       }
@@ -160,7 +165,7 @@ export class MotionClient {
       if (this.characters.size >= MAX_CHARACTERS) throw new WireError(`more than ${MAX_CHARACTERS} characters in one stream`);
       const maker = new FrameMaker(this.dims, this.skeleton, this.chunk, this.decoder.decoderState);
       // frame numbers as the generator's (WARP records name frames); a character that started before the client
-      // joined decodes from an empty window, at the origin: its joints are not the generator's
+      // joined decodes from an empty window, at the origin, unless a SYNC of it follows
       maker.frames = event.seq * this.dims.downsample;
       this.characters.set(event.character, new ClientCharacter(event.character, event.text, maker, event.seq));
       return;
@@ -173,6 +178,41 @@ export class MotionClient {
       c.ended = true;
       this.characters.delete(c.ident);
     }
+  }
+
+  /** The character's decoder side from the generator's (client.py `_sync`): what it had here is dropped. */
+  #sync(sync, out) {
+    const c = this.#character(sync.character), d = this.dims, L = d.numLevels;
+    if (out.has(c.ident)) throw new WireError(`character ${c.ident}: a SYNC after its frames in the same message`);
+    const rows = Math.min(sync.seq, d.receptiveField + sync.pending);
+    if (sync.pending > MAX_CHUNK || sync.rows !== rows) {
+      throw new WireError(`character ${c.ident}: a SYNC at token ${sync.seq} holds ${sync.rows} window tokens `
+        + `(${sync.pending} pending); ${rows} expected, at most ${MAX_CHUNK} pending`);
+    }
+    if (sync.window.some((code) => code >= d.codebookSize)) {
+      throw new WireError(`character ${c.ident}: a code outside the codebook (${d.codebookSize})`);
+    }
+    const shapes = this.decoder.decoderState ?? [], size = shapes.reduce((a, [reach, ch]) => a + reach * ch, 0);
+    if (sync.decoderState.length !== size) {
+      throw new WireError(`character ${c.ident}: a SYNC of ${sync.decoderState.length} decoder state values; this `
+        + `decoder's state has ${size}`);
+    }
+    const maker = new FrameMaker(d, this.skeleton, Math.max(this.chunk, sync.pending), this.decoder.decoderState);
+    maker.chunk = this.chunk;   // the window holds the pending tokens, the chunk stays the client's
+    maker.tokens.set(sync.window, maker.tokens.length - rows * L);
+    Object.assign(maker, { count: sync.seq, pending: sync.pending, frames: (sync.seq - sync.pending) * d.downsample });
+    if (maker.state) {
+      let at = 0;
+      maker.state = shapes.map(([reach, ch]) => sync.decoderState.slice(at, (at += reach * ch)));
+    }
+    const { root, lock } = maker.joints;
+    [root.angle, root.x, root.z] = sync.root.slice(0, 3);
+    root.previous = sync.root.slice(3, 6);
+    [lock.x, lock.z] = sync.root.slice(6, 8);
+    lock.previous = sync.toes === null ? null : { toe: sync.toes.map((t) => [...t]), contact: [...sync.contacts] };
+    Object.assign(c, { frames: maker, nextSeq: sync.seq, warp: new RootWarp() });
+    c.warp.eases = sync.eases.map((e) => ({ ...e }));
+    c.warp.active = sync.warped;
   }
 
   #character(ident) {

@@ -8,6 +8,9 @@
 //   WARP    u8 4, u32 character, u32 frame, u16 frames, 5 f64: pose x, pose z, turn, shift x, shift z
 //   JOINTS  u8 5, u32 character, u32 frame, u16 n, u8 joints, n * joints * 3 f32    (a server's, on request)
 //   TICK    u8 6, u64 tick, f64 time     (a server's: which of its ticks a message holds, its clock in seconds)
+//   SYNC    u8 7, u32 character, u32 seq, u8 pending, u8 rows, u16 n, u8 eases, u8 flags, rows * levels u16 codes,
+//           n f32 decoder state, 12 f64 (root, foot lock), eases * (u32 start, u16 frames, 8 f64)
+//                                        (a character's decoder side at token seq, for a client without it)
 //
 // Records are classes, told apart with instanceof as Python's with isinstance; a TOKENS record's codes are a flat
 // Int32Array (count, levels), as tokens everywhere in this runtime. Messages are the Python reader's, so both
@@ -19,7 +22,7 @@ import { oneLine, shown } from '../checks.js';
 
 export const MAGIC = 'MOGT';
 export const VERSION = 1;
-export const HELLO = 1, TOKENS = 2, EVENT = 3, WARP = 4, JOINTS = 5, TICK = 6;
+export const HELLO = 1, TOKENS = 2, EVENT = 3, WARP = 4, JOINTS = 5, TICK = 6, SYNC = 7;
 export const START = 1, PROMPT = 2, CONTROL = 3, RESTART = 4, END = 5;   // events
 export const EVENT_NAMES = Object.freeze({ [START]: 'start', [PROMPT]: 'prompt', [CONTROL]: 'control',
   [RESTART]: 'restart', [END]: 'end' });
@@ -28,6 +31,10 @@ export const MAX_TEXT_BYTES = 4096;   // an event's text: a prompt (at most 1,00
 
 // the fixed part of each record, in bytes (Python's struct sizes: "<" packs without padding)
 const HELLO_SIZE = 18, TOKENS_SIZE = 10, EVENT_SIZE = 12, WARP_SIZE = 51, JOINTS_SIZE = 12, TICK_SIZE = 17;
+const SYNC_SIZE = 15, SYNC_FLOATS = 12, EASE_SIZE = 70;
+export const MAX_EASES = 3;   // control/warp.js RootWarp keeps 3
+export const TOES = 1, LEFT_CONTACT = 2, RIGHT_CONTACT = 4, WARPED = 8;   // a SYNC's flags
+const EASE_REALS = ['phi', 'tx', 'tz', 'turn', 'sx', 'sz', 'px', 'pz'];
 
 /** A token stream that breaks the format, or one this client cannot decode. */
 export class WireError extends Error {
@@ -77,6 +84,21 @@ export class Warp {
   constructor(character, frame, frames, pose, turn, shift) {
     Object.assign(this, { character, frame, frames, pose, turn, shift });
   }
+}
+
+/**
+ * A character's decoder side once its tokens before `seq` were pushed (format.py Sync): `window` Int32Array (rows,
+ * levels) of the last min(seq, receptiveField + pending) tokens, the last `pending` without frames yet;
+ * `decoderState` Float32Array, the decoder_step state arrays flattened in order; `root` 8 numbers (half-angle,
+ * position x z, previous rot_vel vel_x vel_z, the foot lock's offset x z); `toes` [[x, z], [x, z]] or null;
+ * `contacts` [left, right]; `warped` RootWarp.active; `eases` RootWarp's ({start, phi, ..., frames}).
+ */
+export class Sync {
+  constructor(character, seq, pending, window, levels, decoderState, root, toes, contacts, warped, eases) {
+    Object.assign(this, { character, seq, pending, window, levels, decoderState, root, toes, contacts, warped, eases });
+  }
+
+  get rows() { return this.window.length / this.levels; }
 }
 
 /**
@@ -147,6 +169,7 @@ export function encode(record) {
     w.view.setFloat64(9, record.time, true);
     return w.bytes;
   }
+  if (record instanceof Sync) return encodeSync(record);
   if (record instanceof Hello) {
     const w = new Writer(HELLO_SIZE);
     w.u8(HELLO);
@@ -156,6 +179,26 @@ export function encode(record) {
     return w.bytes;
   }
   throw new TypeError(`not a record: ${record?.constructor?.name ?? typeof record}`);
+}
+
+function encodeSync(r) {
+  const rows = r.rows, n = r.decoderState.length, eases = r.eases.length;
+  if (!Number.isInteger(rows) || rows > 255 || n > 0xFFFF || !(eases >= 1 && eases <= MAX_EASES)) {
+    throw new WireError(`a SYNC holds at most 255 window tokens, 65535 state values and 1 to ${MAX_EASES} eases`);
+  }
+  if (r.window.some((c) => !Number.isInteger(c) || c < 0 || c > 0xFFFF)) throw new WireError('token codes are u16 on the wire');
+  const flags = (r.toes !== null ? TOES : 0) | (r.contacts[0] ? LEFT_CONTACT : 0) | (r.contacts[1] ? RIGHT_CONTACT : 0)
+    | (r.warped ? WARPED : 0);
+  const w = new Writer(SYNC_SIZE + 2 * r.window.length + 4 * n + 8 * SYNC_FLOATS + EASE_SIZE * eases);
+  w.u8(SYNC).u32(r.character).u32(r.seq).u8(r.pending).u8(rows).u16(n).u8(eases).u8(flags);
+  for (const c of r.window) w.u16(c);
+  for (const x of r.decoderState) w.f32(x);
+  for (const x of [...r.root, ...(r.toes === null ? [0, 0, 0, 0] : r.toes.flat())]) w.f64(x);
+  for (const e of r.eases) {
+    w.u32(e.start).u16(e.frames);
+    for (const k of EASE_REALS) w.f64(e[k]);
+  }
+  return w.bytes;
 }
 
 /** Little-endian fields written one after another; a value out of its field's range is refused, as struct does. */
@@ -181,6 +224,12 @@ class Writer {
 
   u32(v) { return this.#int(32, v, (x) => this.view.setUint32(this.at, x, true)); }
 
+  f32(v) {
+    this.view.setFloat32(this.at, v, true);
+    this.at += 4;
+    return this;
+  }
+
   f64(v) {
     this.view.setFloat64(this.at, v, true);
     this.at += 8;
@@ -198,6 +247,11 @@ function recordSize(data, at, levels) {
     return data.length < at + JOINTS_SIZE ? null : JOINTS_SIZE + 12 * (data[at + 9] | (data[at + 10] << 8)) * data[at + 11];
   }
   if (kind === TICK) return TICK_SIZE;
+  if (kind === SYNC) {
+    if (data.length < at + SYNC_SIZE) return null;
+    const rows = data[at + 10], n = data[at + 11] | (data[at + 12] << 8), eases = data[at + 13];
+    return SYNC_SIZE + 2 * rows * levels + 4 * n + 8 * SYNC_FLOATS + EASE_SIZE * eases;
+  }
   if (kind === HELLO) return HELLO_SIZE;
   throw new WireError(`byte ${at}: unknown record type ${kind}`);
 }
@@ -244,6 +298,7 @@ function decodeRecord(data, at, size, levels) {
     }
     return new Joints(u32(1), u32(5), joints, J);
   }
+  if (kind === SYNC) return decodeSync(data, view, at, levels);
   const magic = data.subarray(at + 1, at + 5), version = data[at + 5];
   if (String.fromCharCode(...magic) !== MAGIC) {
     throw new WireError(`byte ${at}: not a mogo token stream (magic ${pythonBytes(magic)})`);
@@ -252,6 +307,36 @@ function decodeRecord(data, at, size, levels) {
     throw new WireError(`byte ${at}: token-stream version ${version}; this client reads version ${VERSION}`);
   }
   return new Hello(data[at + 6], u16(7), data[at + 9], data.slice(at + 10, at + 18), version);
+}
+
+function decodeSync(data, view, at, levels) {
+  const seq = view.getUint32(at + 5, true), pending = data[at + 9], rows = data[at + 10];
+  const n = view.getUint16(at + 11, true), eases = data[at + 13], flags = data[at + 14];
+  if (!(eases >= 1 && eases <= MAX_EASES) || flags > 15 || pending > rows || rows > seq) {
+    throw new WireError(`byte ${at}: a SYNC of ${rows} window tokens (${pending} pending) at token ${seq} with `
+      + `${eases} eases and flags ${flags}`);
+  }
+  let o = at + SYNC_SIZE;
+  const window = new Int32Array(rows * levels);
+  for (let i = 0; i < window.length; i++, o += 2) window[i] = view.getUint16(o, true);
+  const state = new Float32Array(n);
+  for (let i = 0; i < n; i++, o += 4) state[i] = view.getFloat32(o, true);
+  const floats = [];
+  for (let i = 0; i < SYNC_FLOATS; i++, o += 8) floats.push(view.getFloat64(o, true));
+  const kept = [];
+  for (let k = 0; k < eases; k++, o += EASE_SIZE) {
+    const e = { start: view.getUint32(o, true) };
+    EASE_REALS.forEach((key, i) => { e[key] = view.getFloat64(o + 6 + 8 * i, true); });
+    e.frames = view.getUint16(o + 4, true);
+    kept.push(e);
+    floats.push(...EASE_REALS.map((key) => e[key]));
+  }
+  if (!floats.every(Number.isFinite) || !state.every(Number.isFinite)) {
+    throw new WireError(`byte ${at}: a SYNC of non-finite numbers`);
+  }
+  const toes = flags & TOES ? [floats.slice(8, 10), floats.slice(10, 12)] : null;
+  return new Sync(view.getUint32(at + 1, true), seq, pending, window, levels, state, floats.slice(0, 8), toes,
+    [Boolean(flags & LEFT_CONTACT), Boolean(flags & RIGHT_CONTACT)], Boolean(flags & WARPED), kept);
 }
 
 /** Bytes as Python's repr writes them (b'MOGT', b'\x00...'), so the messages are Python's. */

@@ -8,7 +8,9 @@ requests, and receive their records; with a bundle, their frames too (decoded he
             ident, frames = await c.next()               # (n, J, 3) joints as they are decoded
 
 `next_seq` holds the next token expected of each character: `reconnect()` hands it to the server, which sends what
-was missed, so a dropped connection (or a server restarted on its saved state) loses and repeats nothing.
+was missed, so a dropped connection (or a server restarted on its saved state) loses and repeats nothing. A client
+that joins a session afresh (`connect(..., session=S)`: a game restarted, a page reloaded) names no character; the
+server sends each as a START and a SYNC of where it is now, and the frames go on from there.
 """
 from __future__ import annotations
 
@@ -40,8 +42,11 @@ class ServerClient:
         self.levels: int | None = None
 
     @classmethod
-    async def connect(cls, url: str, token: str, bundle=None, variant: str = "fp32", origin: str | None = None):
+    async def connect(cls, url: str, token: str, bundle=None, variant: str = "fp32", origin: str | None = None,
+                      session: str | None = None):
+        """A new client; with `session`, of a session another client (or this program before it restarted) had."""
         client = cls(url, token, MotionClient(bundle, variant) if bundle is not None else None, origin)
+        client.session = session
         await client.reconnect()
         return client
 
@@ -82,6 +87,8 @@ class ServerClient:
                         self.levels = r.levels
                     elif isinstance(r, wire.Tokens):
                         self.next_seq[r.character] = r.seq + len(r.codes)
+                    elif isinstance(r, wire.Sync):        # the server moved the character on to where it is now
+                        self.next_seq[r.character] = r.seq
                     elif isinstance(r, wire.Event) and r.event == wire.START:
                         self.next_seq.setdefault(r.character, r.seq)
                 if self.decoder is None:

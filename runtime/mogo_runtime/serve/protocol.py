@@ -5,7 +5,8 @@ token-stream messages (wire/format.py), one per tick holding the records of ever
 
     {"op": "hello", "token": T}                        first, within Limits.hello_seconds: the bearer token
     {"op": "hello", "token": T, "session": S, "resume": {"3": 120}}   a reconnection: the session's characters go
-                                                       on, each from the token the client expects next
+                                                       on, each from the token the client expects next (one not
+                                                       named, or no longer kept: from a SYNC of where it is now)
     {"op": "add", "prompt": P, "seed": 1, "seconds": 10, "ref": 7}   -> {"op": "added", "id": 0, "ref": 7}
     {"op": "request", "id": 0, "prompt": P}            a new prompt, and/or a control request (control/commands.py:
                                                        "goal", "path", "velocity", "root", "release")

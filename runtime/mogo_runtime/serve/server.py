@@ -9,6 +9,8 @@ on base) runs on a worker thread, with the clients' requests applied just before
 answering while the model runs. Nothing is lost:
 - a client that disconnects keeps its characters for `linger_seconds`; reconnecting with its session and the next
   token it expects of each character, it gets the records it missed (kept `replay_tokens` per character) and goes on;
+  a character it missed more of, or did not name (a client that lost its decoder, a page reloaded), it gets as a
+  SYNC of where the character is now (and a START before it, where not named): its frames jump there, exactly;
 - SIGTERM stops the ticks, saves every character's state (state.py), its recent records and its session to
   `state_file`, written whole or not at all; a server started on that file restores them, so clients that reconnect
   continue from their last sequence number with the tokens they would have had.
@@ -34,7 +36,7 @@ from ..control.commands import request_from
 from ..crowd import Character, Crowd
 from ..state import restore_character, save_character
 from ..wire import format as wire
-from ..wire.tap import CharacterTap
+from ..wire.tap import CharacterTap, sync
 from .protocol import Limits, ProtocolError, RateLimit, Refused, parse
 
 STATE_FORMAT = "mogo.server/1"
@@ -226,16 +228,20 @@ class MotionServer:
             if session.characters:       # expired meanwhile (_expire removed it and its characters)
                 raise ProtocolError("unknown or expired session")
             self.sessions[session.id] = session
-        replay = []
+        replay, synced = [], []
         for ident, h in session.characters.items():
-            expected = resume.get(ident, 0)
-            if h.replay and h.replay[0][0] > expected:
-                raise ProtocolError(f"character {ident}: token {expected} is no longer kept (the oldest is "
-                                    f"{h.replay[0][0]})")
-            replay.extend(blob for key, blob in h.replay if key >= expected)
+            expected = resume.get(ident)
+            if expected is None or (h.replay and h.replay[0][0] > expected):
+                # the client has nothing of it, or missed more than is kept: it joins the character where it is now
+                start = [] if expected is not None else [wire.Event(ident, h.tap.sent, wire.START, h.character.text)]
+                replay.append(b"".join(map(wire.encode, [*start, sync(h.character, ident)])))
+                synced.append(ident)
+            else:
+                replay.extend(blob for key, blob in h.replay if key >= expected)
         session.queue, session.backlog, session.gone_at, session.live = queue, [], None, True
         return [json.dumps({"op": "welcome", "session": session.id, "server": self.id,
-                            "characters": {str(i): h.tap.sent for i, h in session.characters.items()}}),
+                            "characters": {str(i): h.tap.sent for i, h in session.characters.items()},
+                            "synced": synced}),
                 self.hello + b"".join(replay)]
 
     def _dispatch(self, session: Session, msg: dict) -> None:

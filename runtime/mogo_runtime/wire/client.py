@@ -8,8 +8,9 @@ decoder_step; no step graph, no text encoder: on `base`'s compact variant 0.9 MB
 
 A character's frames are made as a generator makes them (decoding.FrameMaker: the causal decoder, the root
 integrated, planted toes held; then the root corrections of a steered character, replayed from its WARP records),
-so on the same machine they are the generating runtime's joints bit for bit. A game-owned root (`set_root`) is not
-in the stream: each machine puts the frames on the capsule its own game replicates.
+so on the same machine they are the generating runtime's joints bit for bit; a character joined late starts from the
+stream's SYNC of it, so its frames from there are the generator's too. A game-owned root (`set_root`) is not in the
+stream: each machine puts the frames on the capsule its own game replicates.
 """
 from __future__ import annotations
 
@@ -20,10 +21,10 @@ import numpy as np
 
 from ..bundle.folder import Bundle
 from ..bundle.sections import DECODING_GRAPHS
-from ..control.warp import RootWarp
-from ..decoding import FrameMaker, Frames, check_chunk, decode_due
+from ..control.warp import Ease, RootWarp
+from ..decoding import MAX_CHUNK, FrameMaker, Frames, check_chunk, decode_due
 from ..engine import MotionDecoder
-from .format import END, PROMPT, START, Event, Hello, Record, RecordReader, Tokens, Warp, WireError, decoder_id
+from .format import END, PROMPT, START, Event, Hello, Record, RecordReader, Sync, Tokens, Warp, WireError, decoder_id
 
 MAX_CHARACTERS = 100_000     # characters one client follows at once
 
@@ -83,6 +84,8 @@ class MotionClient:
                 c = self._character(record.character)
                 self._flush(c, out)     # the frames before it were placed without it
                 c.warp.plan(record.frame, record.frames, np.array(record.pose), record.turn, record.shift)
+            elif isinstance(record, Sync):
+                self._sync(record, out)
             elif isinstance(record, Event):
                 self._event(record, out)
         self._decode(waiting.values(), out)
@@ -123,7 +126,7 @@ class MotionClient:
                 raise WireError(f"more than {MAX_CHARACTERS} characters in one stream")
             maker = FrameMaker(self.dims, self.skeleton, self.chunk, self.decoder.decoder_state)
             # frame numbers as the generator's (WARP records name frames); a character that started before the
-            # client joined decodes from an empty window, at the origin: its joints are not the generator's
+            # client joined decodes from an empty window, at the origin, unless a SYNC of it follows
             maker.frames = event.seq * self.dims.downsample
             self.characters[event.character] = ClientCharacter(event.character, event.text, maker, event.seq)
             return
@@ -134,6 +137,38 @@ class MotionClient:
             self._flush(c, out)
             c.ended = True
             del self.characters[c.ident]
+
+    def _sync(self, sync: Sync, out: dict[int, list[Frames]]) -> None:
+        """The character's decoder side from the generator's: what it had here (a window, tokens not decoded)
+        is dropped, and its frames go on from the generator's frame (seq - pending) * downsample."""
+        c, d = self._character(sync.character), self.dims
+        if c.ident in out:
+            raise WireError(f"character {c.ident}: a SYNC after its frames in the same message")
+        rows = min(sync.seq, d.receptive_field + sync.pending)
+        if sync.pending > MAX_CHUNK or len(sync.window) != rows:
+            raise WireError(f"character {c.ident}: a SYNC at token {sync.seq} holds {len(sync.window)} window tokens "
+                            f"({sync.pending} pending); {rows} expected, at most {MAX_CHUNK} pending")
+        if (sync.window >= d.codebook_size).any():
+            raise WireError(f"character {c.ident}: a code outside the codebook ({d.codebook_size})")
+        shapes = self.decoder.decoder_state or ()
+        if len(sync.decoder_state) != sum(a * b for a, b in shapes):
+            raise WireError(f"character {c.ident}: a SYNC of {len(sync.decoder_state)} decoder state values; this "
+                            f"decoder's state has {sum(a * b for a, b in shapes)}")
+        maker = FrameMaker(d, self.skeleton, max(self.chunk, sync.pending), self.decoder.decoder_state)
+        maker.chunk = self.chunk        # the window holds the pending tokens, the chunk stays the client's
+        maker.tokens[len(maker.tokens) - rows:] = sync.window
+        maker.count, maker.pending, maker.frames = sync.seq, sync.pending, (sync.seq - sync.pending) * d.downsample
+        if maker.state is not None:
+            maker.state = np.split(sync.decoder_state, np.cumsum([a * b for a, b in shapes])[:-1])
+            maker.state = [s.reshape(shape).copy() for s, shape in zip(maker.state, shapes)]
+        root, lock = maker.joints.root, maker.joints.lock
+        root.angle, root.position, root.previous = float(sync.root[0]), sync.root[1:3].copy(), sync.root[3:6].copy()
+        lock.offset = sync.root[6:8].copy()
+        lock.previous = None if sync.toes is None else (sync.toes.copy(), np.array(sync.contacts))
+        c.frames, c.next_seq, c.warp = maker, sync.seq, RootWarp()
+        c.warp.eases.clear()
+        c.warp.eases.extend(Ease(*e) for e in sync.eases)
+        c.warp.active = sync.warped
 
     def _character(self, ident: int) -> ClientCharacter:
         c = self.characters.get(ident)

@@ -10,12 +10,17 @@ A stream is a sequence of records, each self-delimiting, all integers little-end
     JOINTS  u8 5, u32 character, u32 frame, u16 n, u8 joints, n * joints * 3 f32    (a server's, on request)
     TICK    u8 6, u64 tick, f64 time         (a server's: which of its ticks a message holds, and when it was sent
                                               by the server's monotonic clock in seconds)
+    SYNC    u8 7, u32 character, u32 seq, u8 pending, u8 rows, u16 n, u8 eases, u8 flags, rows * levels u16 codes,
+            n f32 decoder state, 12 f64 (root, foot lock), eases * (u32 start, u16 frames, 8 f64)
+                                             (a character's decoder side at token seq, for a client without it)
 
 A HELLO comes first: the client checks it has the decoder the tokens were made for (`decoder_id`: the decoder and
 lookup graphs' sha256, so a compact client refuses an fp32 stream, whose frames would differ in the last bits).
 Every character's tokens come with consecutive sequence numbers from its START; a gap, a repeat or a token after
 END is an error, never a frame made from the wrong context. A WARP carries a steered character's root correction
-(control/warp.py: `RootWarp.plan`'s arguments) so the client places frames where the generator placed them.
+(control/warp.py: `RootWarp.plan`'s arguments) so the client places frames where the generator placed them. A SYNC
+hands a client the decoder side of a character it joins late (or lost): the decoding window, the decoder_step state,
+the root integrator, the foot lock and the root warp, so its frames from there on are the generator's too.
 
 A WebSocket message holds whole records; `RecordReader` also reassembles records cut anywhere (a TCP stream, a file).
 """
@@ -32,7 +37,7 @@ from ..bundle.sections import DECODING_GRAPHS
 
 MAGIC = b"MOGT"
 VERSION = 1
-HELLO, TOKENS, EVENT, WARP, JOINTS, TICK = 1, 2, 3, 4, 5, 6
+HELLO, TOKENS, EVENT, WARP, JOINTS, TICK, SYNC = 1, 2, 3, 4, 5, 6, 7
 START, PROMPT, CONTROL, RESTART, END = 1, 2, 3, 4, 5       # events
 EVENT_NAMES = {START: "start", PROMPT: "prompt", CONTROL: "control", RESTART: "restart", END: "end"}
 MAX_TOKENS_PER_RECORD = 255
@@ -44,6 +49,11 @@ _EVENT = struct.Struct("<BIIBH")
 _WARP = struct.Struct("<BIIH5d")
 _JOINTS = struct.Struct("<BIIHB")
 _TICK = struct.Struct("<BQd")
+_SYNC = struct.Struct("<BIIBBHBB")
+_SYNC_FLOATS = struct.Struct("<12d")
+_EASE = struct.Struct("<IH8d")
+MAX_EASES = 3                  # control/warp.py RootWarp keeps 3
+TOES, LEFT_CONTACT, RIGHT_CONTACT, WARPED = 1, 2, 4, 8      # a SYNC's flags
 
 
 class WireError(ValueError):
@@ -97,7 +107,25 @@ class Tick:
     time: float
 
 
-Record = Hello | Tokens | Event | Warp | Joints | Tick
+@dataclass(frozen=True)
+class Sync:
+    """A character's decoder side once its tokens before `seq` were pushed: what a generator's FrameMaker and
+    RootWarp hold (decoding.py, control/warp.py), for a client that joins the character late or lost it."""
+
+    character: int
+    seq: int                         # the next token of the stream
+    pending: int                     # the last `pending` tokens of `window` have no frames yet
+    window: np.ndarray               # (rows, levels) int64: the last min(seq, receptive_field + pending) tokens
+    decoder_state: np.ndarray        # (n,) float32: the decoder_step state arrays flattened in order; n 0 without
+    root: np.ndarray                 # (8,) float64: half-angle, position x z, previous (rot_vel, vel x, vel z),
+                                     # the foot lock's offset x z
+    toes: np.ndarray | None          # (2, 2) float64: the last frame's toe x z (left, right); None before frames
+    contacts: tuple[bool, bool]      # the last frame's toe contacts
+    warped: bool                     # RootWarp.active
+    eases: tuple[tuple, ...]         # RootWarp.eases: 1 to 3 (start, phi, tx, tz, turn, sx, sz, px, pz, frames)
+
+
+Record = Hello | Tokens | Event | Warp | Joints | Tick | Sync
 
 
 def decoder_id(manifest: Manifest, variant: str) -> bytes:
@@ -137,10 +165,51 @@ def encode(record: Record) -> bytes:
         return _JOINTS.pack(JOINTS, record.character, record.frame, len(j), j.shape[1]) + j.tobytes()
     if isinstance(record, Tick):
         return _TICK.pack(TICK, record.tick, record.time)
+    if isinstance(record, Sync):
+        return _encode_sync(record)
     if isinstance(record, Hello):
         return _HELLO.pack(HELLO, MAGIC, record.version, record.levels, record.codebook_size, record.downsample,
                            record.decoder_id)
     raise TypeError(f"not a record: {type(record).__name__}")
+
+
+def _encode_sync(r: Sync) -> bytes:
+    window, state = np.asarray(r.window), np.asarray(r.decoder_state, "<f4").ravel()
+    if window.ndim != 2 or len(window) > 255 or len(state) > 0xFFFF or not 1 <= len(r.eases) <= MAX_EASES:
+        raise WireError(f"a SYNC holds at most 255 window tokens, 65535 state values and 1 to {MAX_EASES} eases")
+    if len(window) and (window.min() < 0 or window.max() > 0xFFFF):
+        raise WireError("token codes are u16 on the wire")
+    flags = (TOES if r.toes is not None else 0) | (LEFT_CONTACT if r.contacts[0] else 0) | \
+        (RIGHT_CONTACT if r.contacts[1] else 0) | (WARPED if r.warped else 0)
+    toes = np.zeros(4) if r.toes is None else np.asarray(r.toes, np.float64).ravel()
+    return b"".join([
+        _SYNC.pack(SYNC, r.character, r.seq, r.pending, len(window), len(state), len(r.eases), flags),
+        window.astype("<u2").tobytes(), state.tobytes(), _SYNC_FLOATS.pack(*np.asarray(r.root, np.float64), *toes),
+        *(_EASE.pack(int(e[0]), int(e[9]), *map(float, e[1:9])) for e in r.eases)])
+
+
+def _decode_sync(data, at: int, levels: int) -> Sync:
+    _, character, seq, pending, rows, n, eases, flags = _SYNC.unpack_from(data, at)
+    if not 1 <= eases <= MAX_EASES or flags > 15 or pending > rows or rows > seq:
+        raise WireError(f"byte {at}: a SYNC of {rows} window tokens ({pending} pending) at token {seq} with {eases} "
+                        f"eases and flags {flags}")
+    o = at + _SYNC.size
+    window = np.frombuffer(data, "<u2", rows * levels, o).astype(np.int64).reshape(rows, levels)
+    o += 2 * rows * levels
+    state = np.frombuffer(data, "<f4", n, o).astype(np.float32)
+    o += 4 * n
+    floats = np.array(_SYNC_FLOATS.unpack_from(data, o))
+    o += _SYNC_FLOATS.size
+    kept = []
+    for k in range(eases):
+        start, frames, *reals = _EASE.unpack_from(data, o + k * _EASE.size)
+        kept.append((start, *reals, frames))
+        floats = np.concatenate([floats, reals])
+    if not np.isfinite(floats).all() or not np.isfinite(state).all():
+        raise WireError(f"byte {at}: a SYNC of non-finite numbers")
+    toes = floats[8:12].reshape(2, 2) if flags & TOES else None
+    return Sync(character, seq, pending, window, state, floats[:8], toes,
+                (bool(flags & LEFT_CONTACT), bool(flags & RIGHT_CONTACT)), bool(flags & WARPED), tuple(kept))
 
 
 def _size(data: bytes | memoryview, at: int, levels: int) -> int | None:
@@ -161,6 +230,11 @@ def _size(data: bytes | memoryview, at: int, levels: int) -> int | None:
         return _JOINTS.size + 12 * n * data[at + _JOINTS.size - 1]
     if kind == TICK:
         return _TICK.size
+    if kind == SYNC:
+        if len(data) < at + _SYNC.size:
+            return None
+        _, _, _, _, rows, n, eases, _ = _SYNC.unpack_from(data, at)
+        return _SYNC.size + 2 * rows * levels + 4 * n + _SYNC_FLOATS.size + eases * _EASE.size
     if kind == HELLO:
         return _HELLO.size
     raise WireError(f"byte {at}: unknown record type {kind}")
@@ -201,6 +275,8 @@ def _decode(data, at: int, size: int, levels: int) -> Record:
         if not len(j) or not joints or not np.isfinite(j).all():
             raise WireError(f"byte {at}: a JOINTS record of no frames, no joints or non-finite numbers")
         return Joints(character, frame, j)
+    if kind == SYNC:
+        return _decode_sync(data, at, levels)
     _, magic, version, lv, codebook, downsample, ident = _HELLO.unpack_from(data, at)
     if magic != MAGIC:
         raise WireError(f"byte {at}: not a mogo token stream (magic {magic!r})")

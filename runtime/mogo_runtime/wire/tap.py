@@ -6,7 +6,8 @@
 
 `ident` is the number the stream calls the character (a server numbers each connection's characters itself).
 Read every tick: a tap that falls behind by more than the tokens a record holds, or the warp plans a character
-keeps, raises rather than send a stream with a hole in it.
+keeps, raises rather than send a stream with a hole in it. A tap made once the character has tokens starts the
+stream with its START and a SYNC (`sync`): a client that joins then decodes the crowd's frames from there on.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import json
 
 import numpy as np
 
-from .format import CONTROL, END, PROMPT, RESTART, START, Event, Record, Tokens, Warp, WireError
+from .format import CONTROL, END, PROMPT, RESTART, START, Event, Record, Sync, Tokens, Warp, WireError
 
 
 def describe(target) -> str:
@@ -32,6 +33,22 @@ def describe(target) -> str:
     return json.dumps({"game_root": True})
 
 
+def sync(character, ident: int) -> Sync:
+    """The character's decoder side now, after its last token (a crowd's Character: its FrameMaker and warp)."""
+    maker = character.frames
+    root, lock = maker.joints.root, maker.joints.lock
+    rows = min(maker.count, maker.dims.receptive_field + maker.pending)
+    state = np.zeros(0, np.float32) if maker.state is None else np.concatenate([s.ravel() for s in maker.state])
+    warp = character.steering.warp if character.steering is not None else None
+    eases = tuple(warp.eases) if warp is not None else ((0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0),)
+    window = maker.window(rows).copy() if rows else maker.tokens[:0].copy()
+    return Sync(ident, maker.count, maker.pending, window, state,
+                np.array([root.angle, *root.position, *root.previous, *lock.offset], np.float64),
+                None if lock.previous is None else lock.previous[0].copy(),
+                (False, False) if lock.previous is None else tuple(bool(x) for x in lock.previous[1]),
+                warp is not None and warp.active, eases)
+
+
 class CharacterTap:
     """`started`: the stream already has the character's START (a character restored where it was saved)."""
 
@@ -44,6 +61,8 @@ class CharacterTap:
         self.target = steering.target if steering is not None else None
         self.plans = steering.warp.planned if steering is not None else 0
         self.pending: list[Record] = [] if started else [Event(ident, self.sent, START, character.text)]
+        if not started and character.count:
+            self.pending.append(sync(character, ident))
 
     def read(self) -> list[Record]:
         """The records since the last read, in stream order: events, then tokens, then root corrections."""
