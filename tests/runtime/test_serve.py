@@ -21,6 +21,8 @@ from mogo_runtime.crowd import Crowd  # noqa: E402
 from mogo_runtime.serve.client import ServerClient  # noqa: E402
 from mogo_runtime.serve.protocol import Limits  # noqa: E402
 from mogo_runtime.serve.server import MotionServer  # noqa: E402
+from mogo_runtime.serve import server as server_module, sessions as sessions_module  # noqa: E402
+from mogo_runtime.serve.sessions import LocalStore, SessionStore, catch_up  # noqa: E402
 from mogo_runtime.wire import format as wire  # noqa: E402
 
 TOKEN = "test-token-0123456789"
@@ -407,13 +409,13 @@ def test_the_tick_thread_hands_free_memory_back_every_trim_seconds(gen, monkeypa
     its heap every TRIM_SECONDS, on the tick thread, between ticks."""
     import threading
 
-    from mogo_runtime.serve import server as server_module
+    from mogo_runtime.serve.memory import malloc_trim
 
-    assert server_module._malloc_trim() is not None          # this machine's libc is glibc: the trim is real
+    assert malloc_trim() is not None          # this machine's libc is glibc: the trim is real
     calls = []
-    trim = server_module._return_free_memory
+    trim = server_module.return_free_memory
     monkeypatch.setattr(server_module, "TRIM_SECONDS", 0.1)
-    monkeypatch.setattr(server_module, "_return_free_memory",
+    monkeypatch.setattr(server_module, "return_free_memory",
                         lambda: calls.append((threading.current_thread().name, server.ticks)) or trim())
 
     async def main():
@@ -427,3 +429,63 @@ def test_the_tick_thread_hands_free_memory_back_every_trim_seconds(gen, monkeypa
     assert 3 <= len(calls) <= 7, calls
     assert all(name.startswith("mogo-tick") for name, _ in calls), calls
     assert [t for _, t in calls] == sorted(t for _, t in calls) and calls[-1][1] > calls[0][1], calls
+
+
+def test_a_session_is_taken_over_by_another_server_with_the_same_tokens(gen, monkeypatch):
+    """Two servers sharing a session store (as Ray replicas do): a client whose server stops without saving
+    reconnects to the other, which takes its session over from the last checkpoint, runs its characters on to the
+    tokens the client has, and goes on with the tokens they would have had (a prompt switch included), none lost or
+    repeated; a server whose session was taken over while it still runs lets its copy go."""
+    store = LocalStore(SessionStore(linger_seconds=30.0))
+    # only the checkpoints a change makes, at first: the client is then surely ahead of the last one
+    monkeypatch.setattr(server_module, "CHECKPOINT_TICKS", 10 ** 9)
+    caught_up = []
+    monkeypatch.setattr(sessions_module, "catch_up",
+                        lambda gen, states: caught_up.extend(n for _, n in states.values()) or catch_up(gen, states))
+
+    async def main():
+        a, url_a, stop_a, task_a = await running(gen, store=store)
+        b, url_b, stop_b, task_b = await running(gen, store=store)
+        c = await ServerClient.connect(url_a, TOKEN)
+        walker = await c.add("a person walks forward", seed=1)
+        waver = await c.add(PROMPTS[1][0], seed=PROMPTS[1][1])
+        switches = {}
+        got = await tokens_of(c, {walker: 6, waver: 6})
+        await c.request(walker, prompt="a person turns left")
+        await tokens_of(c, {walker: 9, waver: 9}, got, switches)
+        stop_a.set()                     # a stops (no state file): only the store has its session
+        await task_a
+        with pytest.raises(ConnectionError):
+            while True:                  # what a sent before it closed, then the close
+                await tokens_of(c, {walker: len(got[walker]) + 1}, got, switches, timeout=10)
+        await c.close()
+        c.url = url_b
+        had = dict(c.next_seq)
+        welcome = await c.reconnect()
+        assert welcome["server"] == b.id and welcome["characters"] == {str(i): n for i, n in had.items()}
+        assert welcome["synced"] == [walker, waver] and caught_up == [had[walker], had[waver]]
+        await tokens_of(c, {walker: 30, waver: 30}, got, switches)
+        monkeypatch.setattr(server_module, "CHECKPOINT_TICKS", 5)
+        # and back to a, started again on the same store: b still runs, and lets the session go once a has it
+        a2, url_a2, stop_a2, task_a2 = await running(gen, store=store)
+        await c.close()
+        c.url = url_a2
+        await c.reconnect()
+        await tokens_of(c, {walker: 40, waver: 40}, got, switches)
+        for _ in range(100):
+            if not len(b.crowd):
+                break
+            await asyncio.sleep(0.05)
+        left_b = len(b.crowd)
+        await c.close()
+        for stop, task in [(stop_b, task_b), (stop_a2, task_a2)]:
+            stop.set()
+            await task
+        return got, switches, left_b
+
+    got, switches, left_b = asyncio.run(main())
+    switch = switches[0]
+    assert switch[1] == "a person turns left" and left_b == 0
+    np.testing.assert_array_equal(np.stack(got[0][:40]), reference_tokens(gen, "a person walks forward", 1, 40,
+                                                                        switch=switch))
+    np.testing.assert_array_equal(np.stack(got[1][:40]), reference_tokens(gen, *PROMPTS[1], 40))

@@ -1,6 +1,8 @@
 """`mogo serve --ray` on a local Ray cluster the test starts (a head and one worker node on this machine): clients get
-the tokens of their characters through Ray Serve's proxy, a WebSocket stays on its replica, and scaling 1 -> 2 -> 1
-replicas drops no connection on a replica that stays (no token lost or repeated)."""
+the tokens of their characters through Ray Serve's proxy, a WebSocket stays on its replica, scaling 1 -> 2 -> 1
+replicas drops no connection on a replica that stays (no token lost or repeated), and the clients of the replica
+removed reconnect to the one that stays, which takes their sessions over: their characters go on with the tokens
+they would have had."""
 import asyncio
 import os
 import shutil
@@ -90,16 +92,28 @@ def test_ray_serve_replicas_scale_without_dropping_connections_that_stay(cluster
         # every client follows its character for 25 s, each token the next one: a client on the replica that goes
         # away is closed (within Ray's 2 s grace), the others must not miss a token meanwhile
         members = [(first, ident, got), *((c, i, {i: []}) for c, i in zip(others, other_ids))]
+        prompts = [PROMPTS[0], *[PROMPTS[1]] * len(others)]
         stayed = await asyncio.gather(*(follow(c, i, mine, 25.0) for c, i, mine in members))
-        for c in [first, *others]:
-            await c.close()
         alive = [c.welcome["server"] for (c, _, _), ok in zip(members, stayed) if ok]
         gone = [c.welcome["server"] for (c, _, _), ok in zip(members, stayed) if not ok]
-        return got[ident], servers, alive, gone
+        # the clients closed with their replica come back: the replica that stays takes their sessions over
+        moved = []
+        for (c, i, mine), prompt, ok in zip(members, prompts, stayed):
+            if not ok:
+                welcome = await c.reconnect()
+                assert welcome["server"] in alive and list(welcome["characters"]) == [str(i)], welcome
+                await tokens_of(c, {i: len(mine[i]) + 10}, mine)
+                moved.append((prompt, mine[i]))
+        for c in [first, *others]:
+            await c.close()
+        return got[ident], servers, alive, gone, moved
 
-    tokens, servers, alive, gone = asyncio.run(main())
+    tokens, servers, alive, gone, moved = asyncio.run(main())
     assert len(servers) == 2, "no client landed on the second replica"
     assert alive and gone and len(set(alive)) == 1 and set(gone) == servers - set(alive), \
         f"clients of the replica that stays carry on ({alive}), those of the one removed are closed ({gone})"
     gen = MotionGenerator(portable_toy_bundle, variant="compact")
     np.testing.assert_array_equal(np.stack(tokens[:10]), reference_tokens(gen, *PROMPTS[0], 10))
+    assert moved and all(len(m) >= 20 for _, m in moved)
+    for (prompt, seed), m in moved:     # the tokens before and after the handover: the character's generated alone
+        np.testing.assert_array_equal(np.stack(m), reference_tokens(gen, prompt, seed, len(m)))

@@ -2,10 +2,11 @@
 
 Each replica is a whole `MotionServer` (its own crowd, its own tick loop) behind Ray Serve's HTTP proxy, which
 routes each WebSocket connection to a replica and keeps it there for its life; the protocol is the same, byte for
-byte (protocol.py). Sessions live in their replica: a client that reconnects may land on another replica, which does
-not know its session and says so (the client then starts a new one). Replicas are added or removed by deploying again
-with another `--replicas` (Ray Serve changes the count without restarting the replicas that stay, so their
-connections carry on).
+byte (protocol.py). The replicas checkpoint their sessions to one SessionStore actor (serve/sessions.py): a client
+whose replica was removed (or died) reconnects, lands on another, and that one takes its session over, its
+characters going on with the tokens they would have had. Replicas are added or removed by deploying again with
+another `--replicas` (Ray Serve changes the count without restarting the replicas that stay, so their connections
+carry on).
 
     ray start --head                                # or any Ray cluster; RAY_ADDRESS says where
     mogo serve bundles/base --ray --replicas 2 --port 8000
@@ -21,12 +22,14 @@ from ray import serve
 
 from .protocol import Limits, ProtocolError
 from .server import MotionServer
+from .sessions import SessionStore
 
 APP = "mogo"
+STORE, NAMESPACE = "mogo-sessions", "mogo"      # the session store actor, shared by the replicas
 # Ray Serve's code version: deploying again with the same one and another replica count scales in place (the
 # replicas that stay, and their connections, carry on); a version Ray does not know replaces every replica. A change
 # to the server's code or protocol bumps it.
-VERSION = "mogo-serve/1"
+VERSION = "mogo-serve/2"
 
 
 class StarletteConnection:
@@ -65,6 +68,28 @@ class StarletteConnection:
             raise StopAsyncIteration from None
 
 
+class ActorStore:
+    """The deployment's SessionStore actor, as a server awaits a store."""
+
+    def __init__(self, actor):
+        self.actor = actor
+
+    async def put(self, owner: str, states: dict[str, str], dropped: list[str]) -> list[str]:
+        return await self.actor.put.remote(owner, states, dropped)
+
+    async def claim(self, session: str, owner: str) -> str | None:
+        return await self.actor.claim.remote(session, owner)
+
+
+def session_store(linger_seconds: float):
+    """The store actor: made by the first replica, found by the others (and by a redeployment). It takes no CPU
+    of its own (a replica takes one): it only holds JSON."""
+    import ray
+
+    return ray.remote(SessionStore).options(name=STORE, namespace=NAMESPACE, get_if_exists=True,
+                                            lifetime="detached", num_cpus=0).remote(linger_seconds)
+
+
 app = FastAPI()
 
 
@@ -77,7 +102,7 @@ class MotionReplica:
         from ..generator import MotionGenerator
 
         self.server = MotionServer(MotionGenerator(bundle, variant=variant, threads=threads), token, limits,
-                                   origins=origins)
+                                   origins=origins, store=ActorStore(session_store(limits.linger_seconds)))
         self.origins, self.max_size = self.server.origins, limits.max_message_bytes
         self.stop, self.ticking = asyncio.Event(), None
 
@@ -122,5 +147,9 @@ def serve_on_ray(args, token: str, limits: Limits) -> int:
         signal.signal(sig, lambda *_: stop.set())
     stop.wait()
     serve.delete(APP)
-    print("mogo serve: the Ray Serve application is deleted", file=sys.stderr)
+    try:
+        ray.kill(ray.get_actor(STORE, namespace=NAMESPACE))
+    except ValueError:          # no replica ever made it
+        pass
+    print("mogo serve: the Ray Serve application and its session store are deleted", file=sys.stderr)
     return 0

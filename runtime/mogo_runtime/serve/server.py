@@ -13,13 +13,13 @@ answering while the model runs. Nothing is lost:
   SYNC of where the character is now (and a START before it, where not named): its frames jump there, exactly;
 - SIGTERM stops the ticks, saves every character's state (state.py), its recent records and its session to
   `state_file`, written whole or not at all; a server started on that file restores them, so clients that reconnect
-  continue from their last sequence number with the tokens they would have had.
+  continue from their last sequence number with the tokens they would have had;
+- with a `store` (sessions.py; Ray replicas share one), sessions are checkpointed there, and a client whose server
+  was removed or died reconnects to another, which takes its session over and goes on with the same tokens.
 """
 from __future__ import annotations
 
 import asyncio
-import base64
-import functools
 import hmac
 import json
 import os
@@ -29,45 +29,24 @@ import sys
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..control.commands import request_from
-from ..crowd import Character, Crowd
-from ..state import restore_character, save_character
+from ..crowd import Crowd
 from ..wire import format as wire
 from ..wire.tap import CharacterTap, sync
+from .memory import TRIM_SECONDS, return_free_memory, rss_mb
 from .protocol import Limits, ProtocolError, RateLimit, Refused, parse
+from .sessions import CHECKPOINT_TICKS, Hosted, Session, restore_session, session_state
 
 STATE_FORMAT = "mogo.server/1"
 
 
-@dataclass
-class Hosted:
-    """A character of a session: its crowd member, its stream writer, the records it sent lately (key: the first
-    token of each tick's records)."""
-
-    character: Character
-    tap: CharacterTap
-    replay: deque = field(default_factory=deque)
-    joints: bool = False
-
-
-@dataclass(eq=False)         # a session is itself (a dict key), not its fields
-class Session:
-    id: str
-    characters: dict[int, Hosted] = field(default_factory=dict)
-    next_id: int = 0
-    queue: asyncio.Queue | None = None       # the connected client's outgoing messages; None while disconnected
-    ws: object = None                        # its connection
-    backlog: list | None = None              # messages of ticks that ended while its welcome was being written
-    live: bool = False                       # on the tick thread: whether ticks go to the client or only to replay
-    gone_at: float | None = None
-
-
 class MotionServer:
     def __init__(self, gen, token: str, limits: Limits = Limits(), state_file: str | Path | None = None,
-                 origins: list[str] | None = None, speed: float = 1.0, status_seconds: float = 0.0):
+                 origins: list[str] | None = None, speed: float = 1.0, status_seconds: float = 0.0, store=None):
+        """`store`: a SessionStore as awaitable `put` and `claim` (sessions.py; a Ray actor under `--ray`), to which
+        sessions are checkpointed and from which a client another server had is taken over."""
         if len(token) < 16:
             raise ValueError("the server's bearer token must be at least 16 characters")
         # browsers send an Origin: only those listed connect; None stands for clients that send none (not browsers)
@@ -83,15 +62,18 @@ class MotionServer:
         self.commands: deque = deque()       # the clients' requests, applied on that thread before the next tick
         self.state_file = Path(state_file) if state_file else None
         self.ticks, self.tick_seconds, self.status_seconds = 0, deque(maxlen=100_000), status_seconds
+        self.store, self.changed, self.dropped = store, set(), []     # sessions to write to the store, to let go
         if self.state_file is not None and self.state_file.exists():
             self._restore(self.state_file)
 
     # ---- the tick: on the worker thread ----
 
-    def _advance(self) -> tuple[list, dict[Session, bytes]]:
+    def _advance(self) -> tuple[list, dict[Session, bytes], dict[str, str] | None]:
         replies = []
         while self.commands:
-            replies.extend(self.commands.popleft()())
+            session, command = self.commands.popleft()
+            self.changed.add(session)
+            replies.extend(command())
         self._expire()
         start = time.perf_counter()
         frames = self.crowd.tick() if len(self.crowd) else {}
@@ -119,7 +101,17 @@ class MotionServer:
         stamp = wire.encode(wire.Tick(self.ticks, time.monotonic()))
         out = {session: stamp + blob for session, blob in out.items()}
         self.tick_seconds.append(time.perf_counter() - start)
-        return replies, out
+        return replies, out, self._checkpoint()
+
+    def _checkpoint(self) -> dict[str, str] | None:
+        """The sessions to write to the store after this tick (every one each CHECKPOINT_TICKS ticks, else those
+        changed), as JSON; None without a store."""
+        if self.store is None:
+            return None
+        write = self.sessions.values() if self.ticks % CHECKPOINT_TICKS == 0 else \
+            [s for s in self.changed if self.sessions.get(s.id) is s]
+        self.changed = set()
+        return {s.id: json.dumps(session_state(s)) for s in write}
 
     def _add(self, session: Session, ident: int, msg: dict):
         def run():
@@ -201,37 +193,45 @@ class MotionServer:
             raise ProtocolError("the first message must be a hello")
         if not hmac.compare_digest(msg["token"].encode(), self.token):
             raise ProtocolError("wrong token")
+        taken = None            # the session's state, from the store, where another server had it
         if "session" in msg:
             session = self.sessions.get(msg["session"])
-            if session is None:
+            if session is None and self.store is not None:
+                taken = await self._claim(msg["session"])
+            if session is None and taken is None:
                 raise ProtocolError("unknown or expired session")
-            if session.queue is not None:
+            if session is not None and session.queue is not None:
                 raise ProtocolError("that session is connected elsewhere")
         else:
             if self._connected() >= self.limits.connections:
                 raise ProtocolError(f"the server has {self.limits.connections} connections, its limit")
             session = Session(secrets.token_urlsafe(18))     # registered by _resume, on the tick thread
         queue = asyncio.Queue(self.limits.send_queue)
-        welcome = await asyncio.get_running_loop().run_in_executor(self.pool, self._resume, session, msg["resume"],
-                                                                   queue)
+        session, welcome = await asyncio.get_running_loop().run_in_executor(self.pool, self._resume, session,
+                                                                            msg["resume"], queue, taken)
         # no await from here on: the welcome, then what ticks made meanwhile, then the ticks as they come
         for message in [*welcome, *session.backlog]:
             queue.put_nowait(message)
         session.backlog = None
         return session
 
-    def _resume(self, session: Session, resume: dict[int, int], queue: asyncio.Queue) -> list:
-        """On the tick thread: the welcome and the records a reconnecting client missed; from now on the session's
-        tick messages wait in its backlog until the handler has queued these. A new session is registered here:
-        the sessions change only on this thread, which iterates them while the event loop reads them."""
-        if self.sessions.get(session.id) is not session:
+    def _resume(self, session: Session | None, resume: dict[int, int], queue: asyncio.Queue,
+                taken: str | None = None) -> tuple[Session, list]:
+        """On the tick thread: the session (restored from `taken`, a state another server had), the welcome and the
+        records a reconnecting client missed; from now on the session's tick messages wait in its backlog until the
+        handler has queued these. A new session is registered here: the sessions change only on this thread, which
+        iterates them while the event loop reads them."""
+        if taken is not None:
+            session = self._take_over(taken, resume)
+        elif self.sessions.get(session.id) is not session:
             if session.characters:       # expired meanwhile (_expire removed it and its characters)
                 raise ProtocolError("unknown or expired session")
             self.sessions[session.id] = session
         replay, synced = [], []
         for ident, h in session.characters.items():
             expected = resume.get(ident)
-            if expected is None or (h.replay and h.replay[0][0] > expected):
+            if expected is None or h.sync or (h.replay and h.replay[0][0] > expected):
+                h.sync = False
                 # the client has nothing of it, or missed more than is kept: it joins the character where it is now
                 start = [] if expected is not None else [wire.Event(ident, h.tap.sent, wire.START, h.character.text)]
                 replay.append(b"".join(map(wire.encode, [*start, sync(h.character, ident)])))
@@ -239,19 +239,19 @@ class MotionServer:
             else:
                 replay.extend(blob for key, blob in h.replay if key >= expected)
         session.queue, session.backlog, session.gone_at, session.live = queue, [], None, True
-        return [json.dumps({"op": "welcome", "session": session.id, "server": self.id,
-                            "characters": {str(i): h.tap.sent for i, h in session.characters.items()},
-                            "synced": synced}),
-                self.hello + b"".join(replay)]
+        return session, [json.dumps({"op": "welcome", "session": session.id, "server": self.id,
+                                     "characters": {str(i): h.tap.sent for i, h in session.characters.items()},
+                                     "synced": synced}),
+                         self.hello + b"".join(replay)]
 
     def _dispatch(self, session: Session, msg: dict) -> None:
         if msg["op"] == "hello":
             raise ProtocolError("hello once, first")
         if msg["op"] == "add":
             ident, session.next_id = session.next_id, session.next_id + 1
-            self.commands.append(self._add(session, ident, msg))
+            self.commands.append((session, self._add(session, ident, msg)))
         else:
-            self.commands.append(self._request(session, msg))
+            self.commands.append((session, self._request(session, msg)))
 
     async def _write(self, ws, queue: asyncio.Queue) -> None:
         try:
@@ -285,7 +285,7 @@ class MotionServer:
         p50, p99 = (times[len(times) // 2], times[min(len(times) - 1, int(0.99 * len(times)))]) if times else (0, 0)
         return (f"tick {self.ticks}, {len(self.crowd)} characters, {self._connected()}"
                 f" clients, tick p50 {1e3 * p50:.2f} ms p99 {1e3 * p99:.2f} ms (of {1e3 * self.period:.0f}), "
-                f"rss {_rss_mb():.0f} MB")
+                f"rss {rss_mb():.0f} MB")
 
     async def run(self, stop: asyncio.Event) -> None:
         """Tick in real time until `stop` is set; a status line on stderr every `status_seconds`."""
@@ -297,12 +297,14 @@ class MotionServer:
                 print(f"mogo serve: {self.status()}", file=sys.stderr, flush=True)
             if loop.time() - last_trim >= TRIM_SECONDS:
                 last_trim = loop.time()
-                await loop.run_in_executor(self.pool, _return_free_memory)
-            replies, out = await loop.run_in_executor(self.pool, self._advance)
+                await loop.run_in_executor(self.pool, return_free_memory)
+            replies, out, checkpoint = await loop.run_in_executor(self.pool, self._advance)
             for session, message in replies:
                 self._deliver(session, message)
             for session, message in out.items():
                 self._deliver(session, message)
+            if checkpoint is not None:
+                await self._write_store(checkpoint)
             deadline += self.period
             delay = deadline - loop.time()
             if delay < -10 * self.period:      # far behind (a machine too busy): start counting again from now
@@ -317,10 +319,16 @@ class MotionServer:
         for sid, session in list(self.sessions.items()):
             if session.queue is None and session.gone_at is not None \
                     and now - session.gone_at > self.limits.linger_seconds:
-                for h in session.characters.values():
-                    if h.character.slot is not None:
-                        self.crowd.remove(h.character)
-                del self.sessions[sid]
+                self._let_go(session)
+                self.dropped.append(sid)
+
+    def _let_go(self, session: Session) -> None:
+        """On the tick thread: the session and its characters leave this server."""
+        for h in session.characters.values():
+            if h.character.slot is not None:
+                self.crowd.remove(h.character)
+        if self.sessions.get(session.id) is session:
+            del self.sessions[session.id]
 
     async def serve(self, host: str, port: int, ready=None, stop: asyncio.Event | None = None) -> None:
         """Serve until `stop` is set (default: SIGTERM or SIGINT); then save the state (`state_file`) and return.
@@ -346,13 +354,49 @@ class MotionServer:
 
     # ---- state ----
 
+    async def _write_store(self, states: dict[str, str]) -> None:
+        """The checkpoint to the store; the sessions another server claimed meanwhile are let go here. A store that
+        fails is said on stderr, once a failure, and the server carries on (its clients lose nothing unless it dies)."""
+        dropped, self.dropped = self.dropped, []
+        try:
+            lost = await self.store.put(self.id, states, dropped)
+        except Exception as e:
+            print(f"mogo serve: the session store failed ({type(e).__name__}: {e}); will write again",
+                  file=sys.stderr, flush=True)
+            self.dropped = dropped + self.dropped
+            return
+        if lost:
+            def let_go():
+                for sid in lost:
+                    session = self.sessions.get(sid)
+                    if session is not None and session.queue is None:     # its client is on another server now
+                        self._let_go(session)
+            await asyncio.get_running_loop().run_in_executor(self.pool, let_go)
+
+    async def _claim(self, sid: str) -> str | None:
+        """The state of a session another server had, now this server's (the store says so); None if none."""
+        try:
+            return await self.store.claim(sid, self.id)
+        except Exception as e:
+            raise ProtocolError(f"the session store failed ({type(e).__name__}); try again") from None
+
+    def _take_over(self, state: str, resume: dict[int, int]) -> Session:
+        """On the tick thread: a claimed session restored here, each character caught up to the token its client
+        expects (sessions.py)."""
+        data = json.loads(state)            # the store holds what a server of this deployment wrote
+        if data["id"] in self.sessions:     # two clients of one session at once: the first has it
+            raise ProtocolError("that session is connected elsewhere")
+        try:
+            session = restore_session(self.crowd, data, resume)
+        except (ValueError, KeyError, TypeError, AttributeError) as e:
+            raise ProtocolError(f"the session could not be taken over ({e})") from None
+        self.sessions[session.id] = session
+        self.changed.add(session)          # written back at once: this server has it now
+        return session
+
     def save(self, path: Path) -> None:
         """Every session and character to `path`, atomically (a temporary file renamed over it)."""
-        data = {"format": STATE_FORMAT, "sessions": [{
-            "id": s.id, "next_id": s.next_id, "characters": [{
-                "id": ident, "state": save_character(h.character).decode(), "joints": h.joints,
-                "replay": [[key, base64.b64encode(blob).decode()] for key, blob in h.replay]}
-                for ident, h in s.characters.items()]} for s in self.sessions.values()]}
+        data = {"format": STATE_FORMAT, "sessions": [session_state(s) for s in self.sessions.values()]}
         tmp = path.with_name(path.name + ".tmp")
         with open(tmp, "w") as f:
             json.dump(data, f)
@@ -366,12 +410,7 @@ class MotionServer:
             if data.get("format") != STATE_FORMAT:
                 raise ValueError(f"format is not {STATE_FORMAT}")
             for s in data["sessions"]:
-                session = Session(str(s["id"]), next_id=int(s["next_id"]), gone_at=time.monotonic())
-                for c in s["characters"]:
-                    character = restore_character(self.crowd, c["state"].encode())
-                    tap = CharacterTap(character, int(c["id"]), started=True)
-                    replay = deque((int(k), base64.b64decode(b, validate=True)) for k, b in c["replay"])
-                    session.characters[int(c["id"])] = Hosted(character, tap, replay, bool(c["joints"]))
+                session = restore_session(self.crowd, s)
                 self.sessions[session.id] = session
         except (ValueError, KeyError, TypeError, AttributeError) as e:
             raise ValueError(f"{path}: not a motion server's saved state ({e})") from None
@@ -402,38 +441,6 @@ def _connection_class():
                 self.transport.pause_reading()
 
     return RefusingConnection
-
-
-# How often the tick thread hands the memory malloc holds free back to the system. glibc keeps freed blocks in its
-# heap: a restored server's characters rebuild their contexts together, and their passing peak stayed resident (800
-# characters of the tests' tiny model: 322 MB against 226 for the same crowd started staggered; 207 and 206 after
-# a trim). A trim took 2.6 ms there, 11 ms beside 256 base characters.
-TRIM_SECONDS = 30.0
-
-
-def _return_free_memory() -> None:
-    """glibc's malloc_trim(0); nothing elsewhere (other C libraries manage their heaps their own way)."""
-    trim = _malloc_trim()
-    if trim is not None:
-        trim(0)
-
-
-@functools.cache
-def _malloc_trim():
-    try:
-        import ctypes
-
-        return ctypes.CDLL("libc.so.6").malloc_trim
-    except (OSError, AttributeError):
-        return None
-
-
-def _rss_mb() -> float:
-    try:
-        with open("/proc/self/status") as f:
-            return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
-    except (OSError, StopIteration, ValueError):
-        return float("nan")
 
 
 def _error(message: str, fatal: bool = False, about: str | None = None) -> str:

@@ -1,0 +1,157 @@
+"""A motion server's sessions, and how they move between servers: saved (a SIGTERM's state file, a store's
+checkpoint), restored, and handed from one server to another through a SessionStore (Ray replicas share one).
+
+A server with a store writes each session to it every CHECKPOINT_TICKS ticks and at the end of every tick in which
+its client changed it (added or removed a character, a prompt, a control request). A character's tokens follow from
+its saved state and the requests made since, so the store always holds a state from which the session goes on as it
+did. A client that reconnects to a server that does not know its session (Ray's proxy sent it to another replica,
+the one it was on was removed or died) gets it from the store there: the server claims it (the server that had it
+learns so at its next write and lets its copy go), restores its characters, runs each on alone to the token the
+client expects (`catch_up`: a crowd of one, as fast as it computes; at most CHECKPOINT_TICKS tokens when the old
+server stopped) and sends a SYNC of it, so the client's frames go on from where they were.
+"""
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+from ..crowd import Character, Crowd
+from ..state import restore_character, save_character
+from ..wire.tap import CharacterTap
+
+CHECKPOINT_TICKS = 5      # 1 s of motion on base: the most a handed-over character runs on alone to catch up
+
+
+@dataclass
+class Hosted:
+    """A character of a session: its crowd member, its stream writer, the records it sent lately (key: the first
+    token of each tick's records); `sync`: its client gets a SYNC of it at the next welcome (a caught-up handover)."""
+
+    character: Character
+    tap: CharacterTap
+    replay: deque = field(default_factory=deque)
+    joints: bool = False
+    sync: bool = False
+
+
+@dataclass(eq=False)         # a session is itself (a dict key), not its fields
+class Session:
+    id: str
+    characters: dict[int, Hosted] = field(default_factory=dict)
+    next_id: int = 0
+    queue: asyncio.Queue | None = None       # the connected client's outgoing messages; None while disconnected
+    ws: object = None                        # its connection
+    backlog: list | None = None              # messages of ticks that ended while its welcome was being written
+    live: bool = False                       # on the tick thread: whether ticks go to the client or only to replay
+    gone_at: float | None = None
+
+
+def session_state(s: Session) -> dict:
+    """The session as JSON-able data: its characters' states (state.py) and recent records."""
+    return {"id": s.id, "next_id": s.next_id, "characters": [{
+        "id": ident, "state": save_character(h.character).decode(), "joints": h.joints,
+        "replay": [[key, base64.b64encode(blob).decode()] for key, blob in h.replay]}
+        for ident, h in s.characters.items()]}
+
+
+def restore_session(crowd: Crowd, data: dict, resume: dict[int, int] | None = None) -> Session:
+    """`session_state`'s data -> the session, its characters members of `crowd` again. With `resume` (a handover:
+    the next token the client expects of each character), the characters behind it first run on to it, and their
+    client gets a SYNC of each. Data that does not fit raises ValueError (or KeyError, TypeError), and the
+    characters restored so far leave the crowd."""
+    session = Session(str(data["id"]), next_id=int(data["next_id"]), gone_at=time.monotonic())
+    saved = {int(c["id"]): c for c in data["characters"]}
+    behind = {}
+    for ident, c in saved.items():
+        expected = None if resume is None else resume.get(ident)
+        if expected is not None and expected > json.loads(c["state"])["context"]["count"]:
+            behind[ident] = (c["state"].encode(), expected)
+    states = catch_up(crowd.gen, behind) if behind else {}
+    try:
+        for ident, c in saved.items():
+            character = restore_character(crowd, states.get(ident, c["state"].encode()))
+            # the tokens since its last record were made here, not kept: its client gets a SYNC instead
+            replay = deque() if ident in states else \
+                deque((int(k), base64.b64decode(b, validate=True)) for k, b in c["replay"])
+            session.characters[ident] = Hosted(character, CharacterTap(character, ident, started=True), replay,
+                                               bool(c["joints"]), sync=ident in states)
+    except BaseException:
+        for h in session.characters.values():
+            crowd.remove(h.character)
+        raise
+    return session
+
+
+def catch_up(gen, states: dict[int, tuple[bytes, int]]) -> dict[int, bytes]:
+    """Saved characters (ident -> (state, tokens)) run on in a crowd of their own until each has its `tokens` (or
+    its limit) -> their states then. A crowd's rows are computed independently, so these are the tokens each had in
+    its own crowd; one crowd batches their steps (a handover's context rebuilds: ~15 ms each alone on base)."""
+    crowd = Crowd(gen, max_characters=len(states))
+    running = {ident: restore_character(crowd, state) for ident, (state, _) in states.items()}
+    out = {}
+    while running:
+        for ident, c in list(running.items()):
+            if c.count >= states[ident][1] or c.done:
+                out[ident] = save_character(c)
+                crowd.remove(c)
+                del running[ident]
+        if running:
+            crowd.tick()
+    return out
+
+
+class SessionStore:
+    """The sessions of a deployment's servers, each held by one (its owner): `put` by the owner, `claim` by a server
+    a client reconnects to. Under Ray it runs as one actor the replicas share (serve/ray.py); in one process, as is.
+    A session not written for `linger_seconds` (its server died, and no client came back for it) is forgotten."""
+
+    def __init__(self, linger_seconds: float):
+        self.linger_seconds = linger_seconds
+        self.sessions: dict[str, tuple[str, float, str]] = {}      # id -> (owner, when written, the state as JSON)
+
+    def put(self, owner: str, states: dict[str, str], dropped: list[str]) -> list[str]:
+        """The owner's sessions written (`states`) and let go (`dropped`) -> those of them another server claimed
+        since (the owner lets its copy go)."""
+        now, lost = time.monotonic(), []
+        for sid in dropped:
+            if self.sessions.get(sid, (owner,))[0] == owner:
+                self.sessions.pop(sid, None)
+        for sid, state in states.items():
+            held = self.sessions.get(sid)
+            if held is not None and held[0] != owner:
+                lost.append(sid)
+            else:
+                self.sessions[sid] = (owner, now, state)
+        for sid, (_, when, _) in list(self.sessions.items()):
+            if now - when > self.linger_seconds:
+                del self.sessions[sid]
+        return lost
+
+    def claim(self, session: str, owner: str) -> str | None:
+        """The session's last state (JSON), now `owner`'s; None when the store does not have it."""
+        held = self.sessions.get(session)
+        if held is None or time.monotonic() - held[1] > self.linger_seconds:
+            return None
+        self.sessions[session] = (owner, time.monotonic(), held[2])
+        return held[2]
+
+    def owner(self, session: str) -> str | None:
+        held = self.sessions.get(session)
+        return None if held is None else held[0]
+
+
+class LocalStore:
+    """A SessionStore in this process, called as a server calls a store (awaited): servers of one process, tests."""
+
+    def __init__(self, store: SessionStore):
+        self.store = store
+
+    async def put(self, owner: str, states: dict[str, str], dropped: list[str]) -> list[str]:
+        return self.store.put(owner, states, dropped)
+
+    async def claim(self, session: str, owner: str) -> str | None:
+        return self.store.claim(session, owner)
