@@ -118,9 +118,10 @@ async function connectServer() {
   $('variant').replaceChildren(new Option(variant, variant));
   openViewer(m.skeleton, m.control ? walkTo : null);
   requestAnimationFrame(draw);
-  remote.pump();
-  status(`connected to ${serverUrl} in ${(page.stats.loadMs / 1000).toFixed(1)} s: type a prompt and press Stream`);
   setBusy(null);
+  if (remote.kept) remote.takeBack();   // a reloaded page: its character, before the frames of its SYNC come
+  else status(`connected to ${serverUrl} in ${(page.stats.loadMs / 1000).toFixed(1)} s: type a prompt and press Stream`);
+  remote.pump();
 }
 
 function isKnown(manifest, variant) {

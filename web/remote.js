@@ -5,13 +5,26 @@
 //
 // Decoding runs on the page's thread: a tick is one token (4 frames on the toy and base), a small decode, so no
 // worker is needed. A dropped connection is resumed (reconnect: the server keeps a session's characters 30 s and
-// sends what was missed), so nothing on screen is lost or repeated.
+// sends what was missed), so nothing on screen is lost or repeated. A reloaded page takes its character back: the
+// session and the character are kept in sessionStorage, and the server sends the character as a SYNC of where it
+// is now (docs/serve.md), so the page shows it going on from there.
 
 import * as ort from './node_modules/onnxruntime-web/dist/ort.wasm.min.mjs';
 import { ConnectionClosed, MotionClient, ServerClient, ServerError, urlLoader } from '../js/src/index.js';
 import { fail, page, receiveFrames, setBusy, showStream, status, streamOver } from './screen.js';
 
 const RECONNECT_TRIES = 10, RECONNECT_SECONDS = 2;   // within the server's 30 s linger
+const SAVED = 'mogo.server';   // sessionStorage: {url, session, ident, text, seed} of the page's character
+
+/** What the page before a reload kept of its character on the server at `url`, or null. */
+function saved(url) {
+  try {
+    const s = JSON.parse(sessionStorage.getItem(SAVED));
+    return s?.url === url && typeof s.session === 'string' && Number.isInteger(s.ident) ? s : null;
+  } catch {
+    return null;   // not JSON: as if nothing was kept
+  }
+}
 
 export class Remote {
   /** The decoder of `variant` (the one the server runs) of the bundle at `bundleUrl`, connected to `url`. */
@@ -21,12 +34,27 @@ export class Remote {
     onStatus(`loading the ${variant} lookup and decoder graphs of ${bundleUrl}`);
     const decoder = await MotionClient.load(urlLoader(bundleUrl), { variant, ort, providers: ['wasm'] });
     onStatus(`connecting to ${url}`);
-    const client = await ServerClient.connect(url, token, { decoder });
-    return new Remote(client, onStatus);
+    const kept = saved(url);
+    let client = null;
+    if (kept !== null) {
+      try {
+        client = await ServerClient.connect(url, token, { decoder, session: kept.session });
+      } catch (e) {
+        if (!(e instanceof ServerError)) throw e;
+        sessionStorage.removeItem(SAVED);
+        onStatus(`the session before the reload is gone (${e.message}): starting a new one`);
+      }
+    }
+    client ??= await ServerClient.connect(url, token, { decoder });
+    const remote = new Remote(client, onStatus);
+    if (kept !== null && client.session === kept.session && Object.hasOwn(client.welcome.characters, String(kept.ident))) {
+      remote.kept = kept;
+    }
+    return remote;
   }
 
   constructor(client, onStatus) {
-    Object.assign(this, { client, onStatus, ident: null, text: null });
+    Object.assign(this, { client, onStatus, ident: null, text: null, kept: null });
     this.removed = new Set();   // characters the page is done with: their last frames are dropped
     this.decoder = client.decoder;
   }
@@ -54,7 +82,7 @@ export class Remote {
       if (this.removed.has(ident) || !s || (s.id !== null && s.id !== ident)) continue;
       s.id = ident;
       receiveFrames(frames.joints, frames.joints.length / (page.manifest.skeleton.parents.length * 3),
-        { first: frames.index === 0, tokens: this.client.nextSeq.get(ident) ?? 0 });
+        { first: page.motion.frames.length === 0, tokens: this.client.nextSeq.get(ident) ?? 0 });
       const text = this.decoder.characters.get(ident)?.text;   // its PROMPT events, as the decoder read them
       if (text !== undefined && text !== this.text) {
         this.text = text;
@@ -88,6 +116,24 @@ export class Remote {
     return false;
   }
 
+  /** The character the page had before a reload, on screen again from where it is now (call before `pump`). */
+  takeBack() {
+    const { ident, text } = this.kept, seed = /^\d+$/.test(this.kept.seed) ? BigInt(this.kept.seed) : 0n;
+    showStream(text, seed, ident);
+    Object.assign(this, { ident, text, kept: null });
+    setBusy('streaming');
+    status(`took "${text}" (seed ${seed}) back from the server after the reload: it goes on from where it is now`);
+  }
+
+  /** The page's character as a reloaded page finds it (`text`: the prompt it follows, or was just asked to). */
+  #keep(text = this.text) {
+    if (this.ident === null) sessionStorage.removeItem(SAVED);
+    else {
+      sessionStorage.setItem(SAVED, JSON.stringify({ url: this.client.url, session: this.client.session,
+        ident: this.ident, text, seed: String(page.motion?.seed ?? 0) }));   // a BigInt: as text
+    }
+  }
+
   /** The page's one character, added with `text` (the one before it removed), on screen as its frames come. */
   async start(text, { seed, seconds }) {
     await this.stop();
@@ -102,13 +148,16 @@ export class Remote {
       throw e;
     }
     this.text = text;
+    this.#keep();
     if (page.stream !== stream) return;   // stopped meanwhile
     stream.id = this.ident;
     status(`streaming "${text}" (seed ${seed}) from the server: type a new prompt and press Enter or "Set prompt"`);
   }
 
   async setPrompt(text) {
-    if (this.ident !== null) await this.client.request(this.ident, { prompt: text });
+    if (this.ident === null) return;
+    await this.client.request(this.ident, { prompt: text });
+    this.#keep(text);   // this.text changes when the server's stream names the prompt (pump)
   }
 
   async walkTo(goal) {
@@ -119,6 +168,7 @@ export class Remote {
     const ident = this.ident, ended = this.ended;
     this.ident = null;
     if (ident === null) return;
+    this.#keep();
     this.removed.add(ident);
     if (ended) return;
     try {

@@ -19,7 +19,8 @@ on its own (checked on `base`: a row's logits and features are identical alone a
 The step graph must be the fixed-capacity one (`portable`; `int8_fixed`: per-row int8, where per-tensor int8
 would make a character's numbers depend on its neighbours; or `compact`: int8-stored weights, float32 arithmetic): each row carries its own `position`, so characters at
 different points of their contexts share one call. Context rebuilds feed their tokens one call each, shared by the
-characters rebuilding in the same tick; every character's last token goes into one call over the whole crowd.
+characters rebuilding in the same tick (whatever their lengths); every character's last token goes into one call over
+the whole crowd.
 """
 from __future__ import annotations
 
@@ -277,17 +278,21 @@ class Crowd:
             return policy.feed(np.stack([plans[m][1][k] for m in members])) if controlled else None
 
         per_call = max(1, SCRATCH_ROWS // policy.rows)
-        for size in sorted(set(sizes[sizes > 1].tolist())):
-            members = np.flatnonzero(sizes == size)
-            for group in [members[i:i + per_call] for i in range(0, len(members), per_call)]:
-                scratch = self._scratch(len(group) * policy.rows)
-                emb = np.concatenate([chars[m].context.rows_emb for m in group])
-                for k in range(size - 1):
-                    self.backend.step_in_place(emb, policy.feed(np.stack([plans[m][0][k] for m in group])),
-                                               np.full(len(emb), k, np.int64), scratch, control_at(group, k))
-                group_rows = (slots[group][:, None] * policy.rows + np.arange(policy.rows)).ravel()
-                for c, fresh in zip(self.cache, scratch):
-                    c[group_rows] = fresh
+        # rebuilds of every length share calls, longest first: the rows still fed at position k are then a prefix
+        # of the group's, a contiguous part of its scratch (16 base characters restored at once, 15 lengths: their
+        # first tick 0.74 s with a call per length and token, 0.33 s so; benchmarks/NOTES.md, "Issue 29")
+        rebuilding = sorted(np.flatnonzero(sizes > 1).tolist(), key=lambda m: -sizes[m])
+        for group in [rebuilding[i:i + per_call] for i in range(0, len(rebuilding), per_call)]:
+            scratch = self._scratch(len(group) * policy.rows)
+            emb = np.concatenate([chars[m].context.rows_emb for m in group])
+            for k in range(sizes[group[0]] - 1):
+                fed = group[:sum(sizes[m] - 1 > k for m in group)]
+                n = len(fed) * policy.rows
+                self.backend.step_in_place(emb[:n], policy.feed(np.stack([plans[m][0][k] for m in fed])),
+                                           np.full(n, k, np.int64), [a[:n] for a in scratch], control_at(fed, k))
+            group_rows = (slots[group][:, None] * policy.rows + np.arange(policy.rows)).ravel()
+            for c, fresh in zip(self.cache, scratch):
+                c[group_rows] = fresh
         emb = np.concatenate([c.context.rows_emb for c in chars])
         last = policy.feed(np.stack([tokens[-1] for tokens, _, _ in plans]))
         position = policy.feed(np.array([c.context.cached for c in chars], np.int64))

@@ -4,6 +4,7 @@ reconnects, or a server stopped with SIGTERM and started again, loses and repeat
 import asyncio
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -21,7 +22,7 @@ from mogo_runtime.crowd import Crowd  # noqa: E402
 from mogo_runtime.serve.client import ServerClient  # noqa: E402
 from mogo_runtime.serve.protocol import Limits  # noqa: E402
 from mogo_runtime.serve.server import MotionServer  # noqa: E402
-from mogo_runtime.serve import server as server_module, sessions as sessions_module  # noqa: E402
+from mogo_runtime.serve import server as server_module  # noqa: E402
 from mogo_runtime.serve.sessions import LocalStore, SessionStore, catch_up  # noqa: E402
 from mogo_runtime.wire import format as wire  # noqa: E402
 
@@ -440,7 +441,7 @@ def test_a_session_is_taken_over_by_another_server_with_the_same_tokens(gen, mon
     # only the checkpoints a change makes, at first: the client is then surely ahead of the last one
     monkeypatch.setattr(server_module, "CHECKPOINT_TICKS", 10 ** 9)
     caught_up = []
-    monkeypatch.setattr(sessions_module, "catch_up",
+    monkeypatch.setattr(server_module, "catch_up",
                         lambda gen, states: caught_up.extend(n for _, n in states.values()) or catch_up(gen, states))
 
     async def main():
@@ -489,3 +490,14 @@ def test_a_session_is_taken_over_by_another_server_with_the_same_tokens(gen, mon
     np.testing.assert_array_equal(np.stack(got[0][:40]), reference_tokens(gen, "a person walks forward", 1, 40,
                                                                         switch=switch))
     np.testing.assert_array_equal(np.stack(got[1][:40]), reference_tokens(gen, *PROMPTS[1], 40))
+
+
+def test_the_handover_benchmark_reports_its_costs(portable_toy_bundle, capsys):  # noqa: F811
+    """benchmarks/handover.py on the toy: what a SYNC, a checkpoint and a takeover cost (numbers, not timings)."""
+    from benchmarks import handover
+
+    assert handover.main(["--bundle", str(portable_toy_bundle), "--characters", "3", "--ticks", "12"]) == 0
+    out = capsys.readouterr().out
+    found = re.search(r"SYNC record: ([\d.]+) KB\n  checkpoint: ([\d.]+) KB and ([\d.]+) ms a character .*\n"
+                      r"  takeover, 5 tokens behind: (\d+) ms", out)
+    assert found and float(found[1]) > 0 and float(found[2]) > float(found[1]), out

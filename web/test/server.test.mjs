@@ -2,7 +2,8 @@
 // (started here, stopped however the file ends: js/test/until_eof.py), taking the page's origin only. The page
 // fetches the manifest, the lookup and the decoder and nothing else, adds its character with the typed prompt, and
 // shows the frames the Python decode-only client makes of those tokens (js/test/make_serve_reference.py); a new
-// prompt is a request the server's stream acknowledges; the skeleton is on screen and moves.
+// prompt is a request the server's stream acknowledges; a reloaded page takes its character back; the skeleton is
+// on screen and moves.
 
 import assert from 'node:assert/strict';
 import { spawn, execFileSync } from 'node:child_process';
@@ -90,14 +91,24 @@ test('server mode: the page decodes a mogo serve\'s tokens to the Python client\
   await page.fill('#prompt', 'a person jumps in place');
   await page.click('#set-prompt');
   await page.waitForFunction(() => window.mogoPage.motion().switches.length === 1, null, { timeout: 30_000 });
+  // a reload: the page takes its character back from the server (a SYNC of where it is) and shows it going on
+  const before = await page.evaluate(() => window.mogoPage.state);
+  await page.reload();
+  assert.equal(await page.evaluate(() => window.mogoPage.ready), true, `the page did not load again: ${problems.join('; ')}`);
+  await waitState(page, (s) => s.busy === 'streaming' && s.frames >= 20);
+  const after = await page.evaluate(() => window.mogoPage.state), taken = await page.evaluate(() => window.mogoPage.motion());
+  assert.equal(after.session, before.session, 'the same session after the reload');
+  assert.deepEqual(taken.texts, ['a person jumps in place'], 'the character taken back follows its last prompt');
   await page.click('#stop');
   await waitState(page, (s) => s.busy === null);
+  assert.equal(await page.evaluate(() => sessionStorage.getItem('mogo.server')), null, 'a stopped character is not kept');
   const pixels = await skeletonPixels(page, [first, second]);
   const stats = (await page.evaluate(() => window.mogoPage.state)).stats;
   console.log(`web: server mode (${BUNDLE}/${VARIANT} from mogo serve): fetched ${fetched.join(', ')} only; `
     + `${want} frames (${ref.joints.tokens} tokens) in ${waited.toFixed(1)} s after Stream (first frame `
     + `${stats.stream.firstFrameMs.toFixed(0)} ms), joints max |diff| ${worst.toExponential(1)} m from Python's decode-only `
-    + `client; a new prompt acknowledged by the server's stream; skeleton ${pixels.shots.map((s) => s.skeleton)} px, `
+    + `client; a new prompt acknowledged by the server's stream; after a reload the page took its character back `
+    + `(${taken.numFrames} frames from its SYNC on, "${taken.texts[0]}"); skeleton ${pixels.shots.map((s) => s.skeleton)} px, `
     + `moved ${pixels.moved[0]} px`);
   assert.ok(worst <= JOINT_TOLERANCE, `the page's joints differ from Python's by ${worst} m`);
   assert.ok(pixels.shots.every((s) => s.skeleton > 100) && pixels.moved[0] > 0, 'the skeleton is not on screen, or still');

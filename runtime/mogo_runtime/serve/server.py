@@ -37,7 +37,7 @@ from ..wire import format as wire
 from ..wire.tap import CharacterTap, sync
 from .memory import TRIM_SECONDS, return_free_memory, rss_mb
 from .protocol import Limits, ProtocolError, RateLimit, Refused, parse
-from .sessions import CHECKPOINT_TICKS, Hosted, Session, restore_session, session_state
+from .sessions import CHECKPOINT_TICKS, Hosted, Session, behind, catch_up, restore_session, session_state
 
 STATE_FORMAT = "mogo.server/1"
 
@@ -193,11 +193,11 @@ class MotionServer:
             raise ProtocolError("the first message must be a hello")
         if not hmac.compare_digest(msg["token"].encode(), self.token):
             raise ProtocolError("wrong token")
-        taken = None            # the session's state, from the store, where another server had it
+        taken = None            # (state, characters caught up) of a session another server had, from the store
         if "session" in msg:
             session = self.sessions.get(msg["session"])
             if session is None and self.store is not None:
-                taken = await self._claim(msg["session"])
+                taken = await self._claim(msg["session"], msg["resume"])
             if session is None and taken is None:
                 raise ProtocolError("unknown or expired session")
             if session is not None and session.queue is not None:
@@ -216,13 +216,13 @@ class MotionServer:
         return session
 
     def _resume(self, session: Session | None, resume: dict[int, int], queue: asyncio.Queue,
-                taken: str | None = None) -> tuple[Session, list]:
+                taken: tuple[dict, dict[int, bytes]] | None = None) -> tuple[Session, list]:
         """On the tick thread: the session (restored from `taken`, a state another server had), the welcome and the
         records a reconnecting client missed; from now on the session's tick messages wait in its backlog until the
         handler has queued these. A new session is registered here: the sessions change only on this thread, which
         iterates them while the event loop reads them."""
         if taken is not None:
-            session = self._take_over(taken, resume)
+            session = self._take_over(*taken)
         elif self.sessions.get(session.id) is not session:
             if session.characters:       # expired meanwhile (_expire removed it and its characters)
                 raise ProtocolError("unknown or expired session")
@@ -373,21 +373,31 @@ class MotionServer:
                         self._let_go(session)
             await asyncio.get_running_loop().run_in_executor(self.pool, let_go)
 
-    async def _claim(self, sid: str) -> str | None:
-        """The state of a session another server had, now this server's (the store says so); None if none."""
+    async def _claim(self, sid: str, resume: dict[int, int]) -> tuple[dict, dict[int, bytes]] | None:
+        """A session another server had, now this server's (the store says so) -> its state, and its characters
+        that are behind their client run on to the token it expects (sessions.py): on a thread of their own, beside
+        the ticks. None when the store does not have it."""
         try:
-            return await self.store.claim(sid, self.id)
+            state = await self.store.claim(sid, self.id)
         except Exception as e:
             raise ProtocolError(f"the session store failed ({type(e).__name__}); try again") from None
+        if state is None:
+            return None
 
-    def _take_over(self, state: str, resume: dict[int, int]) -> Session:
-        """On the tick thread: a claimed session restored here, each character caught up to the token its client
-        expects (sessions.py)."""
-        data = json.loads(state)            # the store holds what a server of this deployment wrote
+        def catch_up_behind():
+            data = json.loads(state)           # the store holds what a server of this deployment wrote
+            return data, catch_up(self.gen, behind(data, resume))
+        try:
+            return await asyncio.get_running_loop().run_in_executor(None, catch_up_behind)
+        except (ValueError, KeyError, TypeError, AttributeError) as e:
+            raise ProtocolError(f"the session could not be taken over ({e})") from None
+
+    def _take_over(self, data: dict, caught: dict[int, bytes]) -> Session:
+        """On the tick thread: a claimed session restored here (its characters behind their client from `caught`)."""
         if data["id"] in self.sessions:     # two clients of one session at once: the first has it
             raise ProtocolError("that session is connected elsewhere")
         try:
-            session = restore_session(self.crowd, data, resume)
+            session = restore_session(self.crowd, data, caught)
         except (ValueError, KeyError, TypeError, AttributeError) as e:
             raise ProtocolError(f"the session could not be taken over ({e})") from None
         self.sessions[session.id] = session
