@@ -37,7 +37,7 @@ from ..wire import format as wire
 from ..wire.tap import CharacterTap, sync
 from .memory import TRIM_SECONDS, return_free_memory, rss_mb
 from .protocol import Limits, ProtocolError, RateLimit, Refused, parse
-from .sessions import CHECKPOINT_TICKS, Hosted, Session, behind, catch_up, restore_session, session_state
+from .sessions import Hosted, Session, behind, catch_up, checkpoint_due, restore_session, session_state
 
 STATE_FORMAT = "mogo.server/1"
 
@@ -104,14 +104,14 @@ class MotionServer:
         return replies, out, self._checkpoint()
 
     def _checkpoint(self) -> dict[str, str] | None:
-        """The sessions to write to the store after this tick (every one each CHECKPOINT_TICKS ticks, else those
-        changed), as JSON; None without a store."""
+        """The sessions to write to the store after this tick (each one every CHECKPOINT_TICKS ticks, and those
+        changed; sessions.py), as JSON; None without a store."""
         if self.store is None:
             return None
-        write = self.sessions.values() if self.ticks % CHECKPOINT_TICKS == 0 else \
-            [s for s in self.changed if self.sessions.get(s.id) is s]
+        write = {s for s in self.sessions.values() if checkpoint_due(s, self.ticks)}
+        write |= {s for s in self.changed if self.sessions.get(s.id) is s}
         self.changed = set()
-        return {s.id: json.dumps(session_state(s)) for s in write}
+        return {s.id: json.dumps(session_state(s, replay=False)) for s in write}
 
     def _add(self, session: Session, ident: int, msg: dict):
         def run():
@@ -230,7 +230,8 @@ class MotionServer:
         replay, synced = [], []
         for ident, h in session.characters.items():
             expected = resume.get(ident)
-            if expected is None or h.sync or (h.replay and h.replay[0][0] > expected):
+            kept = expected is not None and (expected >= h.tap.sent or bool(h.replay) and h.replay[0][0] <= expected)
+            if not kept or h.sync:
                 h.sync = False
                 # the client has nothing of it, or missed more than is kept: it joins the character where it is now
                 start = [] if expected is not None else [wire.Event(ident, h.tap.sent, wire.START, h.character.text)]

@@ -1,8 +1,9 @@
 """A motion server's sessions, and how they move between servers: saved (a SIGTERM's state file, a store's
 checkpoint), restored, and handed from one server to another through a SessionStore (Ray replicas share one).
 
-A server with a store writes each session to it every CHECKPOINT_TICKS ticks and at the end of every tick in which
-its client changed it (added or removed a character, a prompt, a control request). A character's tokens follow from
+A server with a store writes each session to it every CHECKPOINT_TICKS ticks (the sessions spread over the ticks)
+and at the end of every tick in which its client changed it (added or removed a character, a prompt, a control
+request); without its recent records, which a client that was behind the checkpoint then gets as a SYNC. A character's tokens follow from
 its saved state and the requests made since, so the store always holds a state from which the session goes on as it
 did. A client that reconnects to a server that does not know its session (Ray's proxy sent it to another replica,
 the one it was on was removed or died) gets it from the store there: the server claims it (the server that had it
@@ -16,6 +17,7 @@ import asyncio
 import base64
 import json
 import time
+import zlib
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -23,7 +25,10 @@ from ..crowd import Character, Crowd
 from ..state import restore_character, save_character
 from ..wire.tap import CharacterTap
 
-CHECKPOINT_TICKS = 5      # 1 s of motion on base: the most a handed-over character runs on alone to catch up
+# 5 s of motion on base: the most a handed-over character runs on alone to catch up. Every 5 ticks, 400 characters of
+# the tests' tiny model on one Ray replica ran at 0.68 of real time (p99 latency 374 ms) where they kept it
+# (benchmarks/NOTES.md, "Issue 29")
+CHECKPOINT_TICKS = 25
 
 
 @dataclass
@@ -50,12 +55,18 @@ class Session:
     gone_at: float | None = None
 
 
-def session_state(s: Session) -> dict:
-    """The session as JSON-able data: its characters' states (state.py) and recent records."""
+def session_state(s: Session, replay: bool = True) -> dict:
+    """The session as JSON-able data: its characters' states (state.py) and (`replay`) their recent records."""
     return {"id": s.id, "next_id": s.next_id, "characters": [{
         "id": ident, "state": save_character(h.character).decode(), "joints": h.joints,
-        "replay": [[key, base64.b64encode(blob).decode()] for key, blob in h.replay]}
+        "replay": [[key, base64.b64encode(blob).decode()] for key, blob in h.replay] if replay else []}
         for ident, h in s.characters.items()]}
+
+
+def checkpoint_due(session: Session, tick: int) -> bool:
+    """Whether tick `tick` writes the session to the store: one tick in CHECKPOINT_TICKS, which one by its id, so
+    no tick writes them all."""
+    return zlib.crc32(session.id.encode()) % CHECKPOINT_TICKS == tick % CHECKPOINT_TICKS
 
 
 def restore_session(crowd: Crowd, data: dict, caught: dict[int, bytes] | None = None) -> Session:
