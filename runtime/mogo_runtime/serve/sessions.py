@@ -3,9 +3,9 @@ checkpoint), restored, and handed from one server to another through a SessionSt
 
 A server with a store writes each session to it every CHECKPOINT_TICKS ticks (the sessions spread over the ticks)
 and at the end of every tick in which its client changed it (added or removed a character, a prompt, a control
-request); without its recent records, which a client that was behind the checkpoint then gets as a SYNC. A character's tokens follow from
-its saved state and the requests made since, so the store always holds a state from which the session goes on as it
-did. A client that reconnects to a server that does not know its session (Ray's proxy sent it to another replica,
+request), without its recent records (a client that was behind the checkpoint gets a SYNC instead). A character's
+tokens follow from its saved state and the requests made since, so the store always holds a state from which the
+session goes on as it did. A client that reconnects to a server that does not know its session (Ray's proxy sent it to another replica,
 the one it was on was removed or died) gets it from the store there: the server claims it (the server that had it
 learns so at its next write and lets its copy go), runs the characters behind the client on to the token it expects
 (`catch_up`: a crowd of their own, beside the server's ticks; at most CHECKPOINT_TICKS tokens when the old server
@@ -25,9 +25,9 @@ from ..crowd import Character, Crowd
 from ..state import restore_character, save_character
 from ..wire.tap import CharacterTap
 
-# 5 s of motion on base: the most a handed-over character runs on alone to catch up. Every 5 ticks, 400 characters of
-# the tests' tiny model on one Ray replica ran at 0.68 of real time (p99 latency 374 ms) where they kept it
-# (benchmarks/NOTES.md, "Issue 29")
+# 5 s of motion on base: the most a handed-over character runs on alone to catch up. Written every 5 ticks with their
+# recent records, 400 characters of the tests' tiny model on one Ray replica ran at 0.68 of real time (p99 latency
+# 374 ms); every 25 without them, at 0.94 (151 ms), as without a store (benchmarks/NOTES.md, "Issue 29")
 CHECKPOINT_TICKS = 25
 
 
@@ -157,10 +157,6 @@ class SessionStore:
             return None
         self.sessions[session] = (owner, time.monotonic(), held[2])
         return held[2]
-
-    def owner(self, session: str) -> str | None:
-        held = self.sessions.get(session)
-        return None if held is None else held[0]
 
 
 class LocalStore:
