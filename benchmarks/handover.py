@@ -20,7 +20,7 @@ import time
 from mogo_runtime import MotionGenerator
 from mogo_runtime.crowd import Crowd
 from mogo_runtime.serve.protocol import Limits
-from mogo_runtime.serve.sessions import CHECKPOINT_TICKS, Hosted, Session, catch_up, session_state
+from mogo_runtime.serve.sessions import CHECKPOINT_RECORDS, CHECKPOINT_TICKS, Hosted, Session, catch_up, session_state
 from mogo_runtime.state import restore_character, save_character
 from mogo_runtime.wire import format as wire
 from mogo_runtime.wire.tap import CharacterTap, sync
@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     best = float("inf")
     for _ in range(5):
         t0 = time.perf_counter()
-        state = json.dumps(session_state(session, replay=False))
+        state = json.dumps(session_state(session, CHECKPOINT_RECORDS))
         best = min(best, time.perf_counter() - t0)
     takeover = float("inf")
     for _ in range(3):

@@ -23,7 +23,9 @@ from mogo_runtime.serve.client import ServerClient  # noqa: E402
 from mogo_runtime.serve.protocol import Limits  # noqa: E402
 from mogo_runtime.serve.server import MotionServer  # noqa: E402
 from mogo_runtime.serve import server as server_module, sessions as sessions_module  # noqa: E402
-from mogo_runtime.serve.sessions import LocalStore, SessionStore, catch_up  # noqa: E402
+from mogo_runtime.serve.sessions import (Hosted, LocalStore, Session, SessionStore, catch_up,  # noqa: E402
+                                         restore_session, session_state)
+from mogo_runtime.wire.tap import CharacterTap  # noqa: E402
 from mogo_runtime.wire import format as wire  # noqa: E402
 
 TOKEN = "test-token-0123456789"
@@ -438,7 +440,7 @@ def test_a_session_is_taken_over_by_another_server_with_the_same_tokens(gen, mon
     reconnects to the other, which takes its session over from the last checkpoint, runs its characters on to the
     tokens the client has, and goes on with the tokens they would have had (a prompt switch included), none lost or
     repeated; a server whose session was taken over while it still runs lets its copy go."""
-    store = LocalStore(SessionStore(linger_seconds=30.0))
+    store = LocalStore(SessionStore(forget_seconds=30.0))
     # only the checkpoints a change makes, at first: the client is then surely ahead of the last one
     monkeypatch.setattr(sessions_module, "CHECKPOINT_TICKS", 10 ** 9)
     caught_up = []
@@ -502,3 +504,24 @@ def test_the_handover_benchmark_reports_its_costs(portable_toy_bundle, capsys): 
     found = re.search(r"SYNC record: ([\d.]+) KB\n  checkpoint: ([\d.]+) KB and ([\d.]+) ms a character .*\n"
                       r"  takeover, 25 tokens behind: (\d+) ms", out)
     assert found and float(found[1]) > 0 and float(found[2]) > 0, out
+
+
+def test_a_checkpoint_keeps_the_last_records_a_lagging_client_needs(gen):
+    """A checkpoint holds each character's last CHECKPOINT_RECORDS records: a client a message or two behind it
+    when its server went gets them replayed (not a SYNC), from the session restored elsewhere."""
+    crowd = Crowd(gen)
+    session = Session("s")
+    c = crowd.add("a person walks forward", seed=1)
+    session.characters[0] = Hosted(c, CharacterTap(c, 0))
+    for _ in range(20):
+        crowd.tick()
+        h = session.characters[0]
+        key, records = h.tap.sent, h.tap.read()
+        h.replay.append((key, b"".join(map(wire.encode, records))))
+    state = session_state(session, sessions_module.CHECKPOINT_RECORDS)
+    assert [k for k, _ in state["characters"][0]["replay"]] == list(range(20 - sessions_module.CHECKPOINT_RECORDS, 20))
+    assert len(session_state(session)["characters"][0]["replay"]) == 20
+    assert session_state(session, 0)["characters"][0]["replay"] == []
+    restored = restore_session(Crowd(gen), json.loads(json.dumps(state)))
+    assert [k for k, _ in restored.characters[0].replay] == list(range(20 - sessions_module.CHECKPOINT_RECORDS, 20))
+    assert restored.characters[0].tap.sent == 20 and not restored.characters[0].sync

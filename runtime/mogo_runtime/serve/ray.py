@@ -22,7 +22,7 @@ from ray import serve
 
 from .protocol import Limits, ProtocolError
 from .server import MotionServer
-from .sessions import SessionStore
+from .sessions import SessionStore, forget_for
 
 APP = "mogo"
 STORE, NAMESPACE = "mogo-sessions", "mogo"      # the session store actor, shared by the replicas
@@ -81,13 +81,13 @@ class ActorStore:
         return await self.actor.claim.remote(session, owner)
 
 
-def session_store(linger_seconds: float):
+def session_store(forget_seconds: float):
     """The store actor: made by the first replica, found by the others (and by a redeployment). It takes no CPU
     of its own (a replica takes one): it only holds JSON."""
     import ray
 
     return ray.remote(SessionStore).options(name=STORE, namespace=NAMESPACE, get_if_exists=True,
-                                            lifetime="detached", num_cpus=0).remote(linger_seconds)
+                                            lifetime="detached", num_cpus=0).remote(forget_seconds)
 
 
 app = FastAPI()
@@ -101,8 +101,9 @@ class MotionReplica:
     def __init__(self, bundle: str, variant: str, token: str, limits: Limits, origins, threads: int):
         from ..generator import MotionGenerator
 
-        self.server = MotionServer(MotionGenerator(bundle, variant=variant, threads=threads), token, limits,
-                                   origins=origins, store=ActorStore(session_store(limits.linger_seconds)))
+        gen = MotionGenerator(bundle, variant=variant, threads=threads)
+        forget = forget_for(limits.linger_seconds, gen.dims.downsample / gen.dims.fps)
+        self.server = MotionServer(gen, token, limits, origins=origins, store=ActorStore(session_store(forget)))
         self.origins, self.max_size = self.server.origins, limits.max_message_bytes
         self.stop, self.ticking = asyncio.Event(), None
 

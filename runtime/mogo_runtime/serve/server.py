@@ -37,7 +37,8 @@ from ..wire import format as wire
 from ..wire.tap import CharacterTap, sync
 from .memory import TRIM_SECONDS, return_free_memory, rss_mb
 from .protocol import Limits, ProtocolError, RateLimit, Refused, parse
-from .sessions import Hosted, Session, behind, catch_up, checkpoint_due, restore_session, session_state
+from .sessions import (CHECKPOINT_RECORDS, Hosted, Session, behind, catch_up, checkpoint_due, restore_session,
+                       session_state)
 
 STATE_FORMAT = "mogo.server/1"
 
@@ -111,7 +112,7 @@ class MotionServer:
         write = {s for s in self.sessions.values() if checkpoint_due(s, self.ticks)}
         write |= {s for s in self.changed if self.sessions.get(s.id) is s}
         self.changed = set()
-        return {s.id: json.dumps(session_state(s, replay=False)) for s in write}
+        return {s.id: json.dumps(session_state(s, CHECKPOINT_RECORDS)) for s in write}
 
     def _add(self, session: Session, ident: int, msg: dict):
         def run():

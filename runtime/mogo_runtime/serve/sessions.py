@@ -3,7 +3,8 @@ checkpoint), restored, and handed from one server to another through a SessionSt
 
 A server with a store writes each session to it every CHECKPOINT_TICKS ticks (the sessions spread over the ticks)
 and at the end of every tick in which its client changed it (added or removed a character, a prompt, a control
-request), without its recent records (a client that was behind the checkpoint gets a SYNC instead). A character's
+request), with only the last CHECKPOINT_RECORDS of its characters' records (a client further behind the checkpoint
+gets a SYNC). A character's
 tokens follow from its saved state and the requests made since, so the store always holds a state from which the
 session goes on as it did. A client that reconnects to a server that does not know its session (Ray's proxy sent it to another replica,
 the one it was on was removed or died) gets it from the store there: the server claims it (the server that had it
@@ -29,6 +30,9 @@ from ..wire.tap import CharacterTap
 # recent records, 400 characters of the tests' tiny model on one Ray replica ran at 0.68 of real time (p99 latency
 # 374 ms); every 25 without them, at 0.94 (151 ms), as without a store (benchmarks/NOTES.md, "Issue 29")
 CHECKPOINT_TICKS = 25
+# A checkpoint's records of each character: a client a message or two behind it when its server went gets them (the
+# last tick's message can be lost with the server) instead of a SYNC; all 300 a server keeps cost the most above.
+CHECKPOINT_RECORDS = 8
 
 
 @dataclass
@@ -55,11 +59,15 @@ class Session:
     gone_at: float | None = None
 
 
-def session_state(s: Session, replay: bool = True) -> dict:
-    """The session as JSON-able data: its characters' states (state.py) and (`replay`) their recent records."""
+def session_state(s: Session, records: int | None = None) -> dict:
+    """The session as JSON-able data: its characters' states (state.py) and their recent records (the last
+    `records` of them; None: all kept)."""
+    def recent(replay: deque) -> list:
+        kept = list(replay)
+        return kept if records is None else kept[max(0, len(kept) - records):]
     return {"id": s.id, "next_id": s.next_id, "characters": [{
         "id": ident, "state": save_character(h.character).decode(), "joints": h.joints,
-        "replay": [[key, base64.b64encode(blob).decode()] for key, blob in h.replay] if replay else []}
+        "replay": [[key, base64.b64encode(blob).decode()] for key, blob in recent(h.replay)]}
         for ident, h in s.characters.items()]}
 
 
@@ -126,10 +134,11 @@ def catch_up(gen, states: dict[int, tuple[bytes, int]]) -> dict[int, bytes]:
 class SessionStore:
     """The sessions of a deployment's servers, each held by one (its owner): `put` by the owner, `claim` by a server
     a client reconnects to. Under Ray it runs as one actor the replicas share (serve/ray.py); in one process, as is.
-    A session not written for `linger_seconds` (its server died, and no client came back for it) is forgotten."""
+    A session not written for `forget_seconds` (its server died, and no client came back for it) is forgotten:
+    `forget_for` gives a server's clients its whole linger after its last checkpoint."""
 
-    def __init__(self, linger_seconds: float):
-        self.linger_seconds = linger_seconds
+    def __init__(self, forget_seconds: float):
+        self.forget_seconds = forget_seconds
         self.sessions: dict[str, tuple[str, float, str]] = {}      # id -> (owner, when written, the state as JSON)
 
     def put(self, owner: str, states: dict[str, str], dropped: list[str]) -> list[str]:
@@ -146,17 +155,23 @@ class SessionStore:
             else:
                 self.sessions[sid] = (owner, now, state)
         for sid, (_, when, _) in list(self.sessions.items()):
-            if now - when > self.linger_seconds:
+            if now - when > self.forget_seconds:
                 del self.sessions[sid]
         return lost
 
     def claim(self, session: str, owner: str) -> str | None:
         """The session's last state (JSON), now `owner`'s; None when the store does not have it."""
         held = self.sessions.get(session)
-        if held is None or time.monotonic() - held[1] > self.linger_seconds:
+        if held is None or time.monotonic() - held[1] > self.forget_seconds:
             return None
         self.sessions[session] = (owner, time.monotonic(), held[2])
         return held[2]
+
+
+def forget_for(linger_seconds: float, tick_seconds: float) -> float:
+    """How long a store keeps a session nobody writes: a vanished client's linger, counted from its server's last
+    checkpoint of it, which can be CHECKPOINT_TICKS ticks before the server died (twice that, for slow ticks)."""
+    return linger_seconds + 2 * CHECKPOINT_TICKS * tick_seconds
 
 
 class LocalStore:
