@@ -305,8 +305,8 @@ class MotionServer:
                 self._deliver(session, message)
             for session, message in out.items():
                 self._deliver(session, message)
-            if checkpoint is not None:
-                await self._write_store(checkpoint)
+            if checkpoint or self.dropped:      # most ticks write nothing: no call to the store then
+                await self._write_store(checkpoint or {})
             deadline += self.period
             delay = deadline - loop.time()
             if delay < -10 * self.period:      # far behind (a machine too busy): start counting again from now
