@@ -3,7 +3,8 @@
 // clients get their characters' tokens, each the next one, equal to those of a character generated alone
 // (test/make_serve_reference.py); the frames the client decodes are the Python decode-only client's; a client
 // that reconnects, after a pause or mid-stream, loses and repeats no token; one that joins a session afresh decodes
-// from a SYNC; a wrong token and a foreign origin are refused.
+// from a SYNC; requests are kept until the server applied them and sent again on reconnecting; a wrong token and a
+// foreign origin are refused.
 
 import test, { after, before } from 'node:test';
 import assert from 'node:assert/strict';
@@ -12,7 +13,7 @@ import { join } from 'node:path';
 import { fileURLToPath } from 'node:url';
 import { setTimeout as sleep } from 'node:timers/promises';
 import { ConnectionClosed, ServerClient, ServerError } from '../src/serve/client.js';
-import { Hello, Tick, Tokens } from '../src/wire/format.js';
+import { Event, Hello, PROMPT, Tick, Tokens } from '../src/wire/format.js';
 import { maxAbsDiff, readReference, report } from './reference.mjs';
 
 const ref = readReference('serve.json');
@@ -174,6 +175,34 @@ test("a client that joins a session afresh decodes each character from its SYNC,
   report(`serve: a client joining a session afresh got its character as a SYNC at frame ${first}; ${compared} frames `
     + `decoded from there: joints max |diff| ${worst.toExponential(1)} m from Python's decode-only client's`);
   assert.ok(worst <= 1e-5, `joints differ from Python's by ${worst} m`);
+});
+
+test('requests are kept until the server applied them: one made while disconnected goes out on reconnecting, once', {
+  timeout: 120_000 }, async () => {
+  const c = await ServerClient.connect(server.url, TOKEN, options);
+  const ident = await c.add(ref.prompts[0].prompt, { seed: ref.prompts[0].seed });
+  const prompts = [];
+  async function until(done) {
+    for (let i = 0; i < 400 && !done(); i++) {
+      const r = await c.next();
+      if (r instanceof Event && r.event === PROMPT) prompts.push([r.seq, r.text]);
+    }
+    assert.ok(done(), 'the server did not apply the request');
+  }
+  await c.request(ident, { prompt: 'a person turns left' });
+  assert.deepEqual([...c.unapplied.keys()], [1]);
+  await until(() => prompts.length === 1 && !c.unapplied.size);   // "applied" 1 came with or before its PROMPT
+  await c.close();
+  await c.request(ident, { prompt: 'a person jumps' });           // not connected: kept
+  assert.deepEqual([...c.unapplied.keys()], [2]);
+  const welcome = await c.reconnect();
+  assert.equal(welcome.applied, 1);
+  await until(() => prompts.length >= 2 && !c.unapplied.size);
+  await c.close();
+  assert.deepEqual(prompts.map(([, text]) => text), ['a person turns left', 'a person jumps']);
+  assert.ok(prompts[1][0] > prompts[0][0]);
+  report(`serve: a request made while disconnected was sent on reconnect and applied once (PROMPT events at tokens `
+    + `${prompts.map(([seq]) => seq).join(' and ')}); numbered requests 1 and 2, "applied" acknowledged both`);
 });
 
 test("a wrong token and a foreign origin are refused with the server's reasons", { timeout: 60_000 }, async () => {

@@ -246,6 +246,9 @@ def test_the_server_stops_reading_a_message_it_refused(gen):
     (json.dumps({"op": "add", "prompt": 5}), "prompt must be a str"),
     (json.dumps({"op": "add", "prompt": "x", "extra": 1}), "unknown field"),
     (json.dumps({"op": "remove", "id": -1}), "id must be"),
+    (json.dumps({"op": "request", "id": 0, "prompt": "x", "n": 0}), "n must be a request number"),
+    (json.dumps({"op": "joints", "id": 0, "on": True, "n": 2 ** 53}), "n must be a request number"),
+    (json.dumps({"op": "remove", "id": 0, "n": 1}), "unknown field"),
     (b"\x00\x01binary", "not binary"),
     ("x" * 5000, "too big|1009"),
     ("flood", "messages a second"),
@@ -525,3 +528,106 @@ def test_a_checkpoint_keeps_the_last_records_a_lagging_client_needs(gen):
     restored = restore_session(Crowd(gen), json.loads(json.dumps(state)))
     assert [k for k, _ in restored.characters[0].replay] == list(range(20 - sessions_module.CHECKPOINT_RECORDS, 20))
     assert restored.characters[0].tap.sent == 20 and not restored.characters[0].sync
+
+
+def test_a_request_its_server_got_as_it_died_is_sent_again_to_the_next(gen):
+    """A request the client sent reaches a server that dies before carrying it out: the client keeps it (numbered)
+    until the server says it applied it, so on reconnecting to the server that takes the session over it sends it
+    again, and the character switches there, once, with the tokens a character switched at that token has."""
+    store = LocalStore(SessionStore(forget_seconds=30.0))
+
+    async def main():
+        a, url_a, stop_a, task_a = await running(gen, store=store)
+        b, url_b, stop_b, task_b = await running(gen, store=store)
+        c = await ServerClient.connect(url_a, TOKEN)
+        walker = await c.add("a person walks forward", seed=1)
+        switches: dict = {}
+        got = await tokens_of(c, {walker: 4})
+        await c.request(walker, prompt="a person turns left")    # applied at a's next tick, answered "applied"
+        await tokens_of(c, {walker: 8}, got, switches)
+        for _ in range(100):
+            if not c.unapplied:
+                break
+            await asyncio.sleep(0.02)
+        assert not c.unapplied and switches == {walker: (switches[walker][0], "a person turns left")}
+        first = switches.pop(walker)
+        lost = asyncio.Event()
+        a._dispatch = lambda session, msg: lost.set()          # a gets the next request and dies before its tick
+        await c.request(walker, prompt="a person jumps")
+        await lost.wait()
+        assert list(c.unapplied) == [2]
+        stop_a.set()
+        await task_a
+        with pytest.raises(ConnectionError):
+            while True:
+                await tokens_of(c, {walker: len(got[walker]) + 1}, got, switches, timeout=10)
+        await c.close()
+        c.url = url_b
+        welcome = await c.reconnect()
+        assert welcome["server"] == b.id and welcome["applied"] == 1
+        await tokens_of(c, {walker: len(got[walker]) + 12}, got, switches)
+        assert not c.unapplied
+        await c.close()
+        stop_b.set()
+        await task_b
+        return got[walker], first, switches
+
+    got, first, switches = asyncio.run(main())
+    (seq, text), = switches.values()
+    assert text == "a person jumps" and seq > first[0]
+    crowd = Crowd(gen)
+    c = crowd.add("a person walks forward", seed=1)
+    want = []
+    for _ in range(len(got)):
+        for at, prompt in (first, (seq, text)):
+            if c.count == at:
+                c.set_prompt(prompt)
+        crowd.tick()
+        want.append(c.context.last.copy())
+    np.testing.assert_array_equal(np.stack(got), np.stack(want))
+
+
+def test_what_a_client_sees_of_its_requests_is_in_the_store_first(gen):
+    """A tick that carried out a client's requests goes out only once the store holds the session after it: a
+    client told "applied" (or shown the switched tokens) never depends on a write its server may not live to make.
+    The store here answers slowly; whenever the client hears "applied n", the store already says n."""
+    inner = SessionStore(forget_seconds=30.0)
+
+    class SlowStore(LocalStore):
+        async def put(self, owner, states, dropped):
+            await asyncio.sleep(0.05)
+            return await super().put(owner, states, dropped)
+
+    async def main():
+        server, url, stop, task = await running(gen, store=SlowStore(inner))
+        seen, binary = [], []
+        async with connect(url) as ws:
+            await ws.send(json.dumps({"op": "hello", "token": TOKEN}))
+            sid = json.loads(await ws.recv())["session"]
+            await ws.send(json.dumps({"op": "add", "prompt": "a person walks forward", "seed": 1}))
+            for n in range(1, 4):
+                await ws.send(json.dumps({"op": "request", "id": 0, "prompt": PROMPTS[n % 3][0], "n": n}))
+                await ws.send(json.dumps({"op": "request", "id": 0, "prompt": "a person jumps", "n": n}))  # a copy
+                while True:
+                    reply = await asyncio.wait_for(ws.recv(), 30)
+                    if isinstance(reply, bytes):
+                        binary.append(reply)
+                    elif json.loads(reply)["op"] == "applied":
+                        seen.append((json.loads(reply)["n"], json.loads(inner.sessions[sid][2])["applied"]))
+                        break
+            for _ in range(3):          # the last switch's tick
+                binary.append(await asyncio.wait_for(ws.recv(), 30))
+        stop.set()
+        await task
+        levels, prompts = None, []
+        for message in binary:
+            for r in wire.read_message(message, levels):
+                if isinstance(r, wire.Hello):
+                    levels = r.levels
+                elif isinstance(r, wire.Event) and r.event == wire.PROMPT:
+                    prompts.append(r.text)
+        return seen, prompts
+
+    seen, prompts = asyncio.run(main())
+    assert seen == [(1, 1), (2, 2), (3, 3)]
+    assert prompts == [PROMPTS[1][0], PROMPTS[2][0], PROMPTS[0][0]]     # the copies skipped

@@ -10,7 +10,10 @@
 // `nextSeq` holds the next token expected of each character: `reconnect()` hands it to the server, which sends what
 // was missed, so a dropped connection (or a server restarted on its saved state) loses and repeats nothing. A client
 // that joins a session afresh (`connect(..., { session })`) names no character; the server sends each as a START and
-// a SYNC of where it is now, and the frames go on from there.
+// a SYNC of where it is now, and the frames go on from there. Requests (`request`, `joints`) are numbered and kept
+// in `unapplied` until the server says it carried them out; `reconnect()` sends again those its welcome does not
+// count, so one its server got in the tick it died in is not lost, and a request made while the connection is down
+// goes out on reconnecting.
 //
 // The socket is the global WebSocket (browsers, Node 22 and later; Node 20 has it behind --experimental-websocket)
 // or the `WebSocket` option. Every message, text or binary, is handled in arrival order, one after another (the
@@ -82,6 +85,8 @@ export class ServerClient {
     this.records = new Queue();   // [ident, frames] with a decoder, else records; errors where the stream broke
     this.errors = [];           // every ServerError the server sent
     this.levels = null;
+    this.unapplied = new Map();   // request number -> the message, until the server applied it
+    this.numbered = 0;            // the last request number used
     this.#WebSocket = WebSocket;
   }
 
@@ -132,7 +137,16 @@ export class ServerClient {
     }
     this.session = welcome.session;
     this.welcome = welcome;
+    this.#applied(welcome.applied);
+    this.numbered = Math.max(this.numbered, welcome.applied);   // a session another client numbered before
+    // the requests not applied, in order, before any new one (the server skips a number below one it has applied)
+    for (const message of this.unapplied.values()) conn.ws.send(message);
+    conn.ready = true;
     return welcome;
+  }
+
+  #applied(n) {
+    for (const k of [...this.unapplied.keys()]) if (k <= n) this.unapplied.delete(k);
   }
 
   /** A socket to `url`, open, its messages routed: the first (the welcome or an error) to `welcome`. */
@@ -145,7 +159,7 @@ export class ServerClient {
     // undici's WebSocket (Node's) takes a dictionary with headers; a browser's second argument is its protocols
     const ws = this.origin === null ? new WS(this.url) : new WS(this.url, { headers: { origin: this.origin } });
     ws.binaryType = 'arraybuffer';
-    const conn = { ws, ours: false, live: false, failed: false };
+    const conn = { ws, ours: false, live: false, failed: false, ready: false };
     let welcomed, refused, opened = false, problem = '';
     conn.welcome = new Promise((resolve, reject) => { welcomed = resolve; refused = reject; });
     conn.welcome.catch(() => {});   // awaited by reconnect only once the socket is open
@@ -209,7 +223,9 @@ export class ServerClient {
   async #receive(data) {
     if (typeof data === 'string') {
       const reply = parseReply(data);
-      if (reply?.op === 'error') {
+      if (reply?.op === 'applied') {
+        this.#applied(reply.n);
+      } else if (reply?.op === 'error') {
         const error = new ServerError(reply.message, reply.fatal);
         this.errors.push(error);
         // only what a caller waits for: a refused request() is in `errors`, not the answer to the next add()
@@ -260,11 +276,20 @@ export class ServerClient {
 
   /** A prompt and/or a control request: { prompt, goal, path, speed, velocity, facing, root, release }. */
   async request(ident, fields = {}) {
-    this.#send(JSON.stringify({ op: 'request', id: ident, ...fields }));
+    this.#numbered({ op: 'request', id: ident, ...fields });
   }
 
   async joints(ident, on = true) {
-    this.#send(JSON.stringify({ op: 'joints', id: ident, on }));
+    this.#numbered({ op: 'joints', id: ident, on });
+  }
+
+  /** Send `msg` with the next request number, kept until applied; while the connection is down, on reconnect(). */
+  #numbered(msg) {
+    this.numbered += 1;
+    const message = JSON.stringify({ ...msg, n: this.numbered });
+    this.unapplied.set(this.numbered, message);
+    const conn = this.#conn;
+    if (conn?.ready && conn.ws.readyState === 1) conn.ws.send(message);
   }
 
   async remove(ident) {

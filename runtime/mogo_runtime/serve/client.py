@@ -8,7 +8,10 @@ requests, and receive their records; with a bundle, their frames too (decoded he
             ident, frames = await c.next()               # (n, J, 3) joints as they are decoded
 
 `next_seq` holds the next token expected of each character: `reconnect()` hands it to the server, which sends what
-was missed, so a dropped connection (or a server restarted on its saved state) loses and repeats nothing. A client
+was missed, so a dropped connection (or a server restarted on its saved state) loses and repeats nothing. Requests
+(`request`, `joints`) are numbered and kept in `unapplied` until the server says it carried them out; `reconnect()`
+sends again those its welcome does not count, so one its server got in the tick it died in is not lost, and a
+request made while the connection is down goes out on reconnecting. A client
 that joins a session afresh (`connect(..., session=S)`: a game restarted, a page reloaded) names no character; the
 server sends each as a START and a SYNC of where it is now, and the frames go on from there.
 """
@@ -40,6 +43,8 @@ class ServerClient:
         self._replies: asyncio.Queue = asyncio.Queue()
         self._ws = self._reader = None
         self.levels: int | None = None
+        self.unapplied: dict[int, str] = {}      # request number -> the message, until the server applied it
+        self.numbered = 0                        # the last request number used
 
     @classmethod
     async def connect(cls, url: str, token: str, bundle=None, variant: str = "fp32", origin: str | None = None,
@@ -56,24 +61,40 @@ class ServerClient:
 
         if self._ws is not None:
             await self.close()
-        self._ws = await connect(self.url, origin=self.origin, compression=None, max_size=16 << 20)
+        ws = await connect(self.url, origin=self.origin, compression=None, max_size=16 << 20)
         hello = {"op": "hello", "token": self.token}
         if self.session is not None:
             hello.update(session=self.session, resume={str(k): v for k, v in self.next_seq.items()})
-        await self._ws.send(json.dumps(hello))
-        welcome = json.loads(await self._ws.recv())
+        await ws.send(json.dumps(hello))
+        welcome = json.loads(await ws.recv())
         if welcome.get("op") != "welcome":
+            await ws.close()
             raise ServerError(welcome.get("message", str(welcome)), bool(welcome.get("fatal")))
         self.session, self.welcome = welcome["session"], welcome
+        self._applied(welcome["applied"])
+        self.numbered = max(self.numbered, welcome["applied"])     # a session another client numbered before
+        # the requests not applied, in order; one made meanwhile waits its turn here (the server skips a number
+        # below one it has applied, so none may overtake another)
+        sent = welcome["applied"]
+        while (later := [k for k in self.unapplied if k > sent]):
+            sent = min(later)
+            await ws.send(self.unapplied[sent])
+        self._ws = ws
         self._reader = asyncio.create_task(self._read())
         return welcome
+
+    def _applied(self, n: int) -> None:
+        for k in [k for k in self.unapplied if k <= n]:
+            del self.unapplied[k]
 
     async def _read(self) -> None:
         try:
             async for message in self._ws:
                 if isinstance(message, str):
                     reply = json.loads(message)
-                    if reply.get("op") == "error":
+                    if reply.get("op") == "applied":
+                        self._applied(reply["n"])
+                    elif reply.get("op") == "error":
                         error = ServerError(reply["message"], reply["fatal"])
                         self.errors.append(error)
                         if reply["fatal"] or reply.get("about") in ("add", "remove"):    # what a caller waits for
@@ -118,10 +139,23 @@ class ServerClient:
 
     async def request(self, ident: int, **fields) -> None:
         """A prompt and/or a control request: prompt=, goal=, path=, speed=, velocity=, facing=, root=, release="""
-        await self._ws.send(json.dumps({"op": "request", "id": ident, **fields}))
+        await self._numbered({"op": "request", "id": ident, **fields})
 
     async def joints(self, ident: int, on: bool = True) -> None:
-        await self._ws.send(json.dumps({"op": "joints", "id": ident, "on": on}))
+        await self._numbered({"op": "joints", "id": ident, "on": on})
+
+    async def _numbered(self, msg: dict) -> None:
+        """Send `msg` with the next request number, kept until applied; while the connection is down, on
+        reconnect()."""
+        from websockets.exceptions import ConnectionClosed
+
+        self.numbered += 1
+        message = self.unapplied[self.numbered] = json.dumps({**msg, "n": self.numbered})
+        if self._ws is not None:
+            try:
+                await self._ws.send(message)
+            except ConnectionClosed:     # kept: the next reconnect() sends it
+                pass
 
     async def remove(self, ident: int) -> None:
         await self._ws.send(json.dumps({"op": "remove", "id": ident}))

@@ -8,10 +8,16 @@ token-stream messages (wire/format.py), one per tick holding the records of ever
                                                        on, each from the token the client expects next (one not
                                                        named, or no longer kept: from a SYNC of where it is now)
     {"op": "add", "prompt": P, "seed": 1, "seconds": 10, "ref": 7}   -> {"op": "added", "id": 0, "ref": 7}
-    {"op": "request", "id": 0, "prompt": P}            a new prompt, and/or a control request (control/commands.py:
+    {"op": "request", "id": 0, "prompt": P, "n": 5}    a new prompt, and/or a control request (control/commands.py:
                                                        "goal", "path", "velocity", "root", "release")
-    {"op": "joints", "id": 0, "on": true}              the character's joints too (JOINTS records)
+    {"op": "joints", "id": 0, "on": true, "n": 6}      the character's joints too (JOINTS records)
     {"op": "remove", "id": 0}
+
+`n` (optional, on request and joints: the two ops nothing answers) numbers a client's requests 1, 2, 3, ... within
+its session. The server answers {"op": "applied", "n": 6} after the tick that carried them out (or refused them)
+and is in the session's saved state, and a welcome says the last one applied (`"applied"`): a client keeps each
+numbered request until then and sends those after it again on reconnecting, so a request its server got in the tick
+it died in is not lost; one numbered at most the last applied is a copy, and is skipped.
 
 A message that is not a JSON object of a known op with well-typed fields, a binary message, a message over
 `max_message_bytes` or more than `messages_per_second` (with a burst of twice that) are the client's fault: it gets
@@ -27,7 +33,8 @@ from dataclasses import dataclass
 from ..checks import shown
 
 OPS = {"hello": {"token", "session", "resume"}, "add": {"prompt", "seed", "seconds", "ref"},
-       "request": None, "joints": {"id", "on"}, "remove": {"id"}}
+       "request": None, "joints": {"id", "on", "n"}, "remove": {"id"}}
+MAX_N = 2 ** 53 - 1        # a request number: what a JavaScript number counts exactly
 
 
 @dataclass(frozen=True)
@@ -92,6 +99,8 @@ def parse(text: str) -> dict:
             raise ProtocolError(f"{op}: id must be a character id (an int >= 0)")
         if op == "joints" and not isinstance(msg.get("on"), bool):
             raise ProtocolError("joints: on must be true or false")
+        if "n" in msg and not (_is_int(msg["n"]) and 1 <= msg["n"] <= MAX_N):
+            raise ProtocolError(f"{op}: n must be a request number (an int in [1, 2**53))")
     return msg
 
 

@@ -15,7 +15,8 @@ answering while the model runs. Nothing is lost:
   `state_file`, written whole or not at all; a server started on that file restores them, so clients that reconnect
   continue from their last sequence number with the tokens they would have had;
 - with a `store` (sessions.py; Ray replicas share one), sessions are checkpointed there, and a client whose server
-  was removed or died reconnects to another, which takes its session over and goes on with the same tokens.
+  was removed or died reconnects to another, which takes its session over and goes on with the same tokens; the
+  requests the dead server received and did not carry out, the client sends again (numbered: protocol.py).
 """
 from __future__ import annotations
 
@@ -69,12 +70,16 @@ class MotionServer:
 
     # ---- the tick: on the worker thread ----
 
-    def _advance(self) -> tuple[list, dict[Session, bytes], dict[str, str] | None]:
+    def _advance(self) -> tuple[list, dict[Session, bytes], tuple[dict[str, str] | None, bool]]:
         replies = []
         while self.commands:
             session, command = self.commands.popleft()
             self.changed.add(session)
             replies.extend(command())
+        for session in self.changed:
+            if session.acked:
+                session.acked = False
+                replies.append((session, json.dumps({"op": "applied", "n": session.applied})))
         self._expire()
         start = time.perf_counter()
         frames = self.crowd.tick() if len(self.crowd) else {}
@@ -104,15 +109,17 @@ class MotionServer:
         self.tick_seconds.append(time.perf_counter() - start)
         return replies, out, self._checkpoint()
 
-    def _checkpoint(self) -> dict[str, str] | None:
+    def _checkpoint(self) -> tuple[dict[str, str] | None, bool]:
         """The sessions to write to the store after this tick (each one every CHECKPOINT_TICKS ticks, and those
-        changed; sessions.py), as JSON; None without a store."""
+        changed; sessions.py), as JSON, None without a store; and whether a client changed one (then the write
+        comes before the tick's messages: what a client sees of its requests, the store has)."""
         if self.store is None:
-            return None
+            self.changed = set()
+            return None, False
         write = {s for s in self.sessions.values() if checkpoint_due(s, self.ticks)}
-        write |= {s for s in self.changed if self.sessions.get(s.id) is s}
+        changed = {s for s in self.changed if self.sessions.get(s.id) is s}
         self.changed = set()
-        return {s.id: json.dumps(session_state(s, CHECKPOINT_RECORDS)) for s in write}
+        return {s.id: json.dumps(session_state(s, CHECKPOINT_RECORDS)) for s in write | changed}, bool(changed)
 
     def _add(self, session: Session, ident: int, msg: dict):
         def run():
@@ -132,6 +139,10 @@ class MotionServer:
 
     def _request(self, session: Session, msg: dict):
         def run():
+            if "n" in msg:
+                if msg["n"] <= session.applied:     # sent again after a reconnect, but carried out before
+                    return []
+                session.applied, session.acked = msg["n"], True
             h = session.characters.get(msg["id"])
             try:
                 if h is None:
@@ -145,7 +156,7 @@ class MotionServer:
                 if msg["op"] == "joints":
                     h.joints = msg["on"]
                     return []
-                request_from({k: v for k, v in msg.items() if k not in ("op", "id")}).apply(h.character)
+                request_from({k: v for k, v in msg.items() if k not in ("op", "id", "n")}).apply(h.character)
             except ValueError as e:
                 return [(session, _error(str(e), about=msg["op"]))]
             return []
@@ -243,7 +254,7 @@ class MotionServer:
         session.queue, session.backlog, session.gone_at, session.live = queue, [], None, True
         return session, [json.dumps({"op": "welcome", "session": session.id, "server": self.id,
                                      "characters": {str(i): h.tap.sent for i, h in session.characters.items()},
-                                     "synced": synced}),
+                                     "synced": synced, "applied": session.applied}),
                          self.hello + b"".join(replay)]
 
     def _dispatch(self, session: Session, msg: dict) -> None:
@@ -300,7 +311,10 @@ class MotionServer:
             if loop.time() - last_trim >= TRIM_SECONDS:
                 last_trim = loop.time()
                 await loop.run_in_executor(self.pool, return_free_memory)
-            replies, out, checkpoint = await loop.run_in_executor(self.pool, self._advance)
+            replies, out, (checkpoint, changed) = await loop.run_in_executor(self.pool, self._advance)
+            if changed:        # a server that dies now has shown its clients nothing the store does not hold
+                await self._write_store(checkpoint)
+                checkpoint = None
             for session, message in replies:
                 self._deliver(session, message)
             for session, message in out.items():

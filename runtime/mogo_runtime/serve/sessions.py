@@ -3,10 +3,10 @@ checkpoint), restored, and handed from one server to another through a SessionSt
 
 A server with a store writes each session to it every CHECKPOINT_TICKS ticks (the sessions spread over the ticks)
 and at the end of every tick in which its client changed it (added or removed a character, a prompt, a control
-request), with only the last CHECKPOINT_RECORDS of its characters' records (a client further behind the checkpoint
-gets a SYNC). A character's
-tokens follow from its saved state and the requests made since, so the store always holds a state from which the
-session goes on as it did. A client that reconnects to a server that does not know its session (Ray's proxy sent it to another replica,
+request), before that tick's messages go out, with only the last CHECKPOINT_RECORDS of its characters' records (a
+client further behind the checkpoint gets a SYNC). A character's tokens follow from its saved state and the requests
+made since, so the store always holds a state from which the session goes on as it did, and with it the number of
+the client's last request carried out (`applied`: the client sends the later ones again, protocol.py). A client that reconnects to a server that does not know its session (Ray's proxy sent it to another replica,
 the one it was on was removed or died) gets it from the store there: the server claims it (the server that had it
 learns so at its next write and lets its copy go), runs the characters behind the client on to the token it expects
 (`catch_up`: a crowd of their own, beside the server's ticks; at most CHECKPOINT_TICKS tokens when the old server
@@ -52,6 +52,8 @@ class Session:
     id: str
     characters: dict[int, Hosted] = field(default_factory=dict)
     next_id: int = 0
+    applied: int = 0                         # the client's last numbered request carried out (protocol.py, `n`)
+    acked: bool = False                      # on the tick thread: its client hears of `applied` after this tick
     queue: asyncio.Queue | None = None       # the connected client's outgoing messages; None while disconnected
     ws: object = None                        # its connection
     backlog: list | None = None              # messages of ticks that ended while its welcome was being written
@@ -65,7 +67,7 @@ def session_state(s: Session, records: int | None = None) -> dict:
     def recent(replay: deque) -> list:
         kept = list(replay)
         return kept if records is None else kept[max(0, len(kept) - records):]
-    return {"id": s.id, "next_id": s.next_id, "characters": [{
+    return {"id": s.id, "next_id": s.next_id, "applied": s.applied, "characters": [{
         "id": ident, "state": save_character(h.character).decode(), "joints": h.joints,
         "replay": [[key, base64.b64encode(blob).decode()] for key, blob in recent(h.replay)]}
         for ident, h in s.characters.items()]}
@@ -82,7 +84,8 @@ def restore_session(crowd: Crowd, data: dict, caught: dict[int, bytes] | None = 
     characters run on to the token their client expects (`catch_up` of `behind`), restored from there; their client
     gets a SYNC of each. Data that does not fit raises ValueError (or KeyError, TypeError), and the characters
     restored so far leave the crowd."""
-    session = Session(str(data["id"]), next_id=int(data["next_id"]), gone_at=time.monotonic())
+    session = Session(str(data["id"]), next_id=int(data["next_id"]), applied=int(data.get("applied", 0)),
+                      gone_at=time.monotonic())
     caught = caught or {}
     try:
         for c in data["characters"]:
