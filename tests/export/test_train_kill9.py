@@ -132,10 +132,13 @@ def test_kill9_during_training_resumes_to_the_uninterrupted_result(tmp_path):
     states = []
     for i, (watch, longest) in enumerate(plan):
         before = _snapshot(cut, watch)
-        proc = subprocess.Popen([sys.executable, "-m", "mogo_export.cli", *_train_args(data, cut)], cwd=ROOT,
-                                env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        err = tmp_path / f"run{i}.stderr"      # a run that ends on its own says why (the test's message shows it)
+        with open(err, "w") as stderr:
+            proc = subprocess.Popen([sys.executable, "-m", "mogo_export.cli", *_train_args(data, cut)], cwd=ROOT,
+                                    env=_env(), stdout=subprocess.DEVNULL, stderr=stderr)
         while _snapshot(cut, watch) == before and proc.poll() is None:
             time.sleep(0.005)
+        ended = proc.poll()
         delay = rng.uniform(0.0, longest * full)
         time.sleep(delay)
         proc.kill()
@@ -143,6 +146,8 @@ def test_kill9_during_training_resumes_to_the_uninterrupted_result(tmp_path):
         states.append(_check_folder(cut, f"kill {i}"))
         log.append(f"killed {delay:.2f} s after writing {watch or 'a file'}{' (had finished)' if code == 0 else ''}"
                    f": {states[-1]}")
+        assert ended in (None, 0), (f"run {i} ended on its own with code {ended} before writing "
+                                    f"{watch or 'a file'}: {'; '.join(log)}\n{err.read_text()[-3000:]}")
     if RUNS >= 2:    # each model was killed mid-training, so each resumed from a checkpoint that was not its last
         assert states[0] == "vq step 30" and states[1].startswith("vq step 60 done, transformer step 30,"), states
     _train(data, cut)                            # resume to the end

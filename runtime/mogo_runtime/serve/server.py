@@ -36,6 +36,7 @@ from ..control.commands import request_from
 from ..crowd import Crowd
 from ..wire import format as wire
 from ..wire.tap import CharacterTap, sync
+from .connection import CLOSE_SECONDS, close_with_error, connection_class, error_message
 from .memory import TRIM_SECONDS, return_free_memory, rss_mb
 from .protocol import Limits, ProtocolError, RateLimit, Refused, parse
 from .sessions import (CHECKPOINT_RECORDS, Hosted, Session, behind, catch_up, checkpoint_due, restore_session,
@@ -132,7 +133,7 @@ class MotionServer:
                     raise Refused(f"the server holds {self.limits.characters} characters, its limit")
                 c = self.crowd.add(msg["prompt"], seed=msg.get("seed", 0), seconds=msg.get("seconds"))
             except ValueError as e:
-                return [(session, _error(str(e), about="add"))]
+                return [(session, error_message(str(e), about="add"))]
             session.characters[ident] = Hosted(c, CharacterTap(c, ident))
             return [(session, json.dumps({"op": "added", "id": ident, "ref": msg.get("ref")}))]
         return run
@@ -158,7 +159,7 @@ class MotionServer:
                     return []
                 request_from({k: v for k, v in msg.items() if k not in ("op", "id", "n")}).apply(h.character)
             except ValueError as e:
-                return [(session, _error(str(e), about=msg["op"]))]
+                return [(session, error_message(str(e), about=msg["op"]))]
             return []
         return run
 
@@ -181,7 +182,7 @@ class MotionServer:
             finally:
                 writer.cancel()
         except ProtocolError as e:
-            await _close(ws, str(e))
+            await close_with_error(ws, str(e))
         except ConnectionError:       # the client left mid-message (a Starlette connection says so; websockets ends)
             pass
         except Exception as e:
@@ -285,7 +286,7 @@ class MotionServer:
             ws, session.queue, session.ws = session.ws, None, None
             session.gone_at, session.live = time.monotonic(), False
             if ws is not None:
-                asyncio.create_task(_close(ws, f"{self.limits.send_queue} messages unread: the client is too slow"))
+                asyncio.create_task(close_with_error(ws, f"{self.limits.send_queue} messages unread: the client is too slow"))
 
     def _connected(self) -> int:
         # list() copies the dict in one step, so the tick thread cannot change it halfway through the count
@@ -359,7 +360,7 @@ class MotionServer:
         async with serve(self.handler, host, port, origins=self.origins, compression=None,
                          max_size=self.limits.max_message_bytes, max_queue=4, ping_interval=10,
                          ping_timeout=10, close_timeout=CLOSE_SECONDS,
-                         create_connection=_connection_class()) as server:
+                         create_connection=connection_class()) as server:
             if ready is not None:
                 ready(server)
             await self.run(stop)
@@ -441,42 +442,3 @@ class MotionServer:
         except (ValueError, KeyError, TypeError, AttributeError) as e:
             raise ValueError(f"{path}: not a motion server's saved state ({e})") from None
         path.rename(path.with_name(path.name + ".restored"))     # restored once: a later crash cannot replay it
-
-
-# How long a client the server closed has to answer the close before its connection is dropped (websockets' default
-# is 10 s).
-CLOSE_SECONDS = 2.0
-
-
-def _connection_class():
-    """websockets' server connection, except that it stops reading from a client whose frames the protocol refused
-    (too big, not WebSocket). websockets then reads and discards whatever the client still sends until it closes:
-    on loopback a 16 MB message cost the server 10-20 ms of its tick thread's CPU (benchmarks/serve_load.py).
-    Paused, the kernel's buffers fill and the client's writes stall; the connection ends at CLOSE_SECONDS."""
-    from websockets.asyncio.server import ServerConnection
-    from websockets.frames import CloseCode
-
-    refused = {CloseCode.PROTOCOL_ERROR, CloseCode.UNSUPPORTED_DATA, CloseCode.INVALID_DATA,
-               CloseCode.MESSAGE_TOO_BIG}
-
-    class RefusingConnection(ServerConnection):
-        def data_received(self, data: bytes) -> None:
-            super().data_received(data)
-            sent = self.protocol.close_sent
-            if sent is not None and self.protocol.close_rcvd is None and sent.code in refused:
-                self.transport.pause_reading()
-
-    return RefusingConnection
-
-
-def _error(message: str, fatal: bool = False, about: str | None = None) -> str:
-    """`about`: the op of the message refused (a client waiting for one reply tells the others apart)."""
-    return json.dumps({"op": "error", "fatal": fatal, "message": message, "about": about})
-
-
-async def _close(ws, message: str) -> None:
-    try:
-        await ws.send(_error(message, fatal=True))
-        await ws.close(1008, message[:120])
-    except Exception:        # the connection is already gone: nothing to tell it
-        pass
