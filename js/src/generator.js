@@ -14,6 +14,7 @@ import { Bundle } from './bundle/folder.js';
 import { fileLoader } from './bundle/io.js';
 import { SamplingConfig } from './bundle/sampling.js';
 import { shown } from './checks.js';
+import { legsOf } from './control/plant.js';
 import { Steerable, Steering } from './control/steering.js';
 import { GenerationTask } from './decoding.js';
 import { OrtBackend } from './engine.js';
@@ -261,7 +262,8 @@ export class FrameStream extends Steerable {
     this.loop = task.streaming !== null ? task.loop(emb, [seed]) : null;
     if (this.loop !== null && !cond.single) this.loop.setActions(cond.emb, cond.limits);
     const control = task.backend.control;
-    this.steering = control && this.loop ? new Steering(control, task.backend.dims, this.loop.streams[0]) : null;
+    this.steering = control && this.loop
+      ? new Steering(control, task.backend.dims, this.loop.streams[0], legsOf(task.skeleton)) : null;
     this.frames = this.#frames(task.stream(emb, seed, chunk, this.loop, () => this.pending, this.steering));
   }
 

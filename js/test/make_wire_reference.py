@@ -11,6 +11,7 @@ Writes REF/wire.json:
   broken    the broken streams of test_wire.py's refusal test and a few more, each with the message the Python
             client refuses it with
   cut       a message that ends inside a record, and read_message's message for it
+  plant     a character's frames moved as a capsule moves them, with the feet the Python FootPlant plants
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ import numpy as np
 
 from mogo_runtime import MotionGenerator
 from mogo_runtime.bundle.folder import Bundle
+from mogo_runtime.control.plant import FootPlant, legs_of
 from mogo_runtime.wire import format as wire
 from mogo_runtime.wire.client import MotionClient
 
@@ -99,7 +101,8 @@ BROKEN = [
 def _sync(levels: int, state: int = 0, rows: int = 1, angle: float = 0.0) -> wire.Sync:
     """A SYNC of character 0 at token 1, one token pending (the broken streams' second message has token 0)."""
     return wire.Sync(0, 1, min(rows, 1), np.zeros((rows, levels), np.int64), np.zeros(state, np.float32),
-                     np.array([angle, *[0.0] * 7]), None, (False, False), False, ((0, *[0.0] * 8, 0),))
+                     np.array([angle, *[0.0] * 7]), None, (False, False), False, ((0, *[0.0] * 8, 0),),
+                     (False, False), np.zeros(8))
 
 
 def broken(bundle: Path, variant: str, messages: list[bytes], levels: int) -> list[dict]:
@@ -117,6 +120,28 @@ def broken(bundle: Path, variant: str, messages: list[bytes], levels: int) -> li
     return out
 
 
+def plant_case(joints: np.ndarray, skeleton) -> dict:
+    """A character's frames moved as a game's capsule would (drifting 3 cm a frame, turning), planted by the Python
+    FootPlant in chunks of 1 to 5 frames, the first 6 frames not moved: the input and what it gives."""
+    t = np.arange(len(joints))[:, None]
+    moved = joints.copy()
+    moved[..., 0] += (0.03 * t + 0.2 * np.sin(t / 7.0)).astype(np.float32)
+    moved[..., 2] += (0.01 * t).astype(np.float32)
+    flags = [i >= 6 for i in range(len(joints))]
+    plant, out, chunks, at = FootPlant(legs_of(skeleton)), [], [], 0
+    while at < len(joints):
+        n = min(1 + at % 5, len(joints) - at)
+        out.append(plant.apply(moved[at:at + n], flags[at:at + n]))
+        chunks.append(n)
+        at += n
+    out = np.concatenate(out)
+    pinned, floats = plant.state()
+    return {"frames": len(joints), "joints": len(joints[0]), "chunks": chunks, "moved": flags,
+            "input": base64.b64encode(moved.astype("<f4").tobytes()).decode(),
+            "output": base64.b64encode(out.astype("<f4").tobytes()).decode(),
+            "changed": int((out != moved).any(-1).any(-1).sum()), "state": {"pinned": pinned, "floats": floats}}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True)
@@ -127,7 +152,7 @@ def main(argv=None) -> int:
     test_wire = _test_wire()
     crowd_stream, late_stream = test_wire.crowd_stream, test_wire.late_stream
     gen = MotionGenerator(args.compact, variant="compact")
-    messages, _ = crowd_stream(gen)
+    messages, crowd_joints = crowd_stream(gen)
     short, _ = crowd_stream(gen, ticks=6)
     steered_gen = MotionGenerator(args.steered, variant="portable")
     steered, _ = crowd_stream(steered_gen, ticks=30, steer=True)
@@ -147,6 +172,7 @@ def main(argv=None) -> int:
                     stream("late steered", args.steered, "portable", late_steered)],
         "broken": broken(args.compact, "compact", short, L),
         "cut": {"message": _b64([cut])[0], "levels": L, "error": cut_error},
+        "plant": plant_case(crowd_joints[0], gen.skeleton),
     }
     (args.out / "wire.json").write_text(json.dumps(ref))
     print(f"wrote {args.out / 'wire.json'} ({len(messages)} + {len(steered)} messages, {len(ref['broken'])} broken streams)")

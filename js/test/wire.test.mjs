@@ -11,6 +11,8 @@ import { MotionGenerator } from '../src/generator.js';
 import { fileLoader, toHex } from '../src/bundle/io.js';
 import { DECODING_GRAPHS } from '../src/bundle/sections.js';
 import { MotionDecoder, OrtBackend } from '../src/engine.js';
+import { FootPlant, legsOf } from '../src/control/plant.js';
+import { SKELETONS } from '../src/kinematics/skeleton.js';
 import { MotionClient } from '../src/wire/client.js';
 import {
   END, Event, Hello, Joints, PROMPT, RecordReader, Sync, Tick, Tokens, Warp, WireError, encode, readMessage,
@@ -96,7 +98,8 @@ test('records round-trip; what the wire cannot carry is refused', () => {
     new Sync(3, 12, 2, Int32Array.from([0, 1, 2, 3, 4, 5]), 2, Float32Array.from([-1, 0.5, 2]),
       [0, 1, 2, 3, 4, 5, 6, 7].map((x) => x / 3), [[0.1, 0.2], [-0.3, 0.4]], [true, false], true,
       [{ start: 0, phi: 0, tx: 0, tz: 0, turn: 0, sx: 0, sz: 0, px: 0, pz: 0, frames: 0 },
-        { start: 40, phi: 0.5, tx: 1, tz: -1, turn: 0.25, sx: 0.01, sz: 0, px: 2, pz: 3, frames: 12 }])];
+        { start: 40, phi: 0.5, tx: 1, tz: -1, turn: 0.25, sx: 0.01, sz: 0, px: 2, pz: 3, frames: 12 }],
+      [false, true], [0, 1, 2, 3, 4, 5, 6, 7].map((x) => x / 9))];
   const back = readMessage(Buffer.concat(records.map(encode)));
   assert.deepEqual(back, records);   // the BOM is text, kept as Python keeps it
   assert.throws(() => encode(new Tokens(0, 0, new Int32Array(0), 2)),
@@ -146,4 +149,24 @@ test("a broken stream is refused with the Python client's message", async () => 
     'unknown record type', 'non-UTF-8 text', 'code outside codebook', 'non-finite WARP', 'SYNC state size',
     'SYNC window', 'SYNC no eases', 'SYNC non-finite']) assert.ok(names.includes(name), name);
   report(`token streams: ${names.length} broken streams refused with Python's messages, word for word`);
+});
+
+test("planted feet are Python's to the bit, in any chunks, with the same state", () => {
+  const p = ref.plant, frameSize = p.joints * 3;
+  const input = new Float32Array(bytes(p.input).buffer.slice(0)), want = new Float32Array(bytes(p.output).buffer.slice(0));
+  const plant = new FootPlant(legsOf(SKELETONS.humanml3d)), out = [];
+  let at = 0;
+  for (const n of p.chunks) {
+    out.push(plant.apply(input.slice(at * frameSize, (at + n) * frameSize), frameSize, p.moved.slice(at, at + n)));
+    at += n;
+  }
+  const got = new Float32Array(input.length);
+  out.reduce((o, chunk) => { got.set(chunk, o); return o + chunk.length; }, 0);
+  assert.ok(p.changed > p.frames / 2, `the case planted too little (${p.changed} frames changed)`);
+  assert.equal(maxAbsDiff(got, want), 0, 'planted joints differ from Python\'s');
+  assert.deepEqual(plant.state(), [p.state.pinned, p.state.floats]);
+  // and whole at once: the same
+  assert.equal(maxAbsDiff(new FootPlant(legsOf(SKELETONS.humanml3d)).apply(input, frameSize, p.moved), want), 0);
+  report(`planted feet: ${p.frames} frames (${p.changed} of them changed by the plant) equal to Python's bit for bit, in `
+    + `chunks of 1 to 5 frames and whole`);
 });

@@ -33,6 +33,7 @@ import numpy as np
 
 from .bundle.sampling import SamplingConfig, sampling_or
 from .checks import as_int
+from .control.plant import legs_of
 from .control.steering import Steerable, Steering
 from .decoding import FrameMaker, Frames, check_chunk, decode_due
 from .endless import StreamContext
@@ -89,7 +90,8 @@ class Character(Steerable):
         self.context = StreamContext(crowd.policy, cond.emb, seed, crowd.gen.bundle.manifest.streaming,
                                      control.dim if control else 0, cond.limits)
         self.frames = FrameMaker(crowd.gen.dims, crowd.gen.skeleton, crowd.chunk, crowd.backend.decoder_state)
-        self.steering = Steering(control, crowd.gen.dims, self.context) if control else None
+        self.steering = Steering(control, crowd.gen.dims, self.context, legs_of(crowd.gen.skeleton)) \
+            if control else None
         self.switches: deque[tuple[int, str]] = deque(maxlen=SWITCH_HISTORY)
         self.recorded: tuple[list, list, list] | None = ([], [], []) if record else None   # tokens, features, joints
 

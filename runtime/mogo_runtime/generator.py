@@ -27,6 +27,7 @@ from .bundle.folder import Bundle
 from .bundle.sampling import SamplingConfig, sampling_or
 from .checks import as_real, shown
 from .clock import NO_CLOCK, StageClock
+from .control.plant import legs_of
 from .control.steering import Steerable, Steering
 from .decoding import Frames, Generated, GenerationTask
 from .engine import open_backend
@@ -84,7 +85,7 @@ class FrameStream(Steerable):
         if self._loop is not None and not cond.single:
             self._loop.set_actions(cond.emb, cond.limits)
         control = task.backend.control
-        self.steering = Steering(control, task.backend.dims, self._loop.streams[0]) \
+        self.steering = Steering(control, task.backend.dims, self._loop.streams[0], legs_of(task.skeleton)) \
             if control is not None and self._loop is not None else None
         self._frames = _frames(task.stream(emb, seed, chunk, self._loop, self.steering), task.backend.dims.fps)
         self._closed = False

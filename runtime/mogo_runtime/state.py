@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .control.targets import FollowPath, GameRoot, Steer, WalkTo
+from .control.plant import STATE_FLOATS
 from .control.warp import Ease
 from .decoding import MAX_CHUNK
 from .generator import Conditioning
@@ -78,7 +79,8 @@ def save_character(c: "Character") -> bytes:
             "toes": None if lock.previous is None else [lock.previous[0].tolist(), lock.previous[1].tolist()]},
         "steering": None if c.steering is None else {
             "target": _target(c.steering.target), "pose": c.steering.pose.tolist(), "frame": c.steering.frame,
-            "eases": [list(e) for e in c.steering.warp.eases], "active": c.steering.warp.active},
+            "eases": [list(e) for e in c.steering.warp.eases], "active": c.steering.warp.active,
+            "plant": dict(zip(("pinned", "values"), c.steering.warp.plant.state()))},
     }
     return json.dumps(state, separators=(",", ":")).encode()
 
@@ -293,3 +295,9 @@ def _restore_into(character, top: _Fields, c: _Fields, dims, span: int, L: int, 
             kept.append(Ease(ef.int("start"), *(ef.real(k) for k in Ease._fields[1:9]), ef.int("frames", 0, 1 << 16)))
         steering.warp.eases = deque(kept, maxlen=steering.warp.eases.maxlen)
         steering.warp.active = s.bool("active")
+        if "plant" in s.data:          # else saved before feet were planted: none are
+            p = s.sub("plant")
+            pinned = p._get("pinned")
+            if not isinstance(pinned, list) or len(pinned) != 2 or not all(isinstance(x, bool) for x in pinned):
+                p.fail("pinned", "[left, right] true or false")
+            steering.warp.plant.load(pinned, p.reals("values", STATE_FLOATS))

@@ -157,9 +157,9 @@ def test_every_record_round_trips():
                wire.Joints(3, 44, np.arange(6, dtype=np.float32).reshape(1, 2, 3)), wire.Tick(2 ** 40 + 7, 1234.5),
                wire.Sync(3, 12, 2, np.arange(10).reshape(5, 2), np.linspace(-1, 1, 7, dtype=np.float32),
                          np.arange(8) / 3.0, np.array([[0.1, 0.2], [-0.3, 0.4]]), (True, False), True,
-                         ((0, *[0.0] * 8, 0), (40, *np.arange(8) / 7.0, 12))),
+                         ((0, *[0.0] * 8, 0), (40, *np.arange(8) / 7.0, 12)), (False, True), np.arange(8) / 9.0),
                wire.Sync(4, 0, 0, np.zeros((0, 2), np.int64), np.zeros(0, np.float32), np.zeros(8), None,
-                         (False, False), False, ((0, *[0.0] * 8, 0),))]
+                         (False, False), False, ((0, *[0.0] * 8, 0),), (False, False), np.zeros(8))]
     back = wire.read_message(b"".join(map(wire.encode, records)))
     assert len(back) == len(records)
     for a, b in zip(records, back):

@@ -15,14 +15,15 @@ import { controlDim, encode } from './vector.js';
 import { RootWarp, wrap } from './warp.js';
 
 export class Steering {
-  constructor(spec, dims, context) {
+  /** `legs`: [hip, knee, ankle, toe] of each leg (plant.js legsOf) to plant the feet of the frames moved. */
+  constructor(spec, dims, context, legs = null) {
     if (spec.dim !== controlDim(spec.horizon)) {
       throw new RangeError(`control dim ${spec.dim} does not match a horizon of ${spec.horizon} tokens`);
     }
     Object.assign(this, { spec, fps: dims.fps, context });
     this.times = Array.from({ length: spec.horizon }, (_, k) => ((k + 1) * dims.downsample) / dims.fps);   // seconds ahead
     this.downsample = dims.downsample;
-    this.warp = new RootWarp();
+    this.warp = new RootWarp(legs);
     this.target = null;
     this.pose = [0, 0, 0];   // the root of the next frame: frame 0 stands at the origin facing +z
     this.frame = 0;          // the next frame's index
@@ -71,7 +72,7 @@ export class Steering {
   /**
    * Frames (n, J, 3) flat, numbered index.., of `frameSize` values each, as shown: moved onto the game's capsule when
    * the game owns the root (where the game last placed it, moved on by its velocity); else with the correction planned
-   * for them (`joints` itself while none was).
+   * for them (`joints` itself while none was); either way with the feet planted (plant.js).
    */
   place(index, joints, frameSize = joints.length) {
     const target = this.target;
@@ -86,7 +87,7 @@ export class Steering {
         joints[j + 2] += dz;
       }
     }
-    return joints;
+    return this.warp.plant ? this.warp.plant.apply(joints, frameSize, true) : joints;
   }
 }
 

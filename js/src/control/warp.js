@@ -5,6 +5,8 @@
 //
 // A point (x, z) of the model's motion stands at M(phi) (x, z) + t, M(a) = [[cos a, sin a], [-sin a, cos a]].
 
+import { FootPlant } from './plant.js';
+
 export const MAX_TURN = 4.5 * (Math.PI / 180);   // per frame: 90 degrees a second (as CPython's math.radians)
 export const MAX_SHIFT = 0.01;                    // m per frame
 export const GAIN = 0.5;                          // of the error corrected over one token
@@ -33,7 +35,12 @@ function easeAt(e, k) {
 }
 
 export class RootWarp {
-  constructor() {
+  /**
+   * `legs`: [hip, knee, ankle, toe] of each leg (plant.js legsOf): the feet the warp moves are planted again; null:
+   * the whole frame moves, feet and all.
+   */
+  constructor(legs = null) {
+    this.plant = legs ? new FootPlant(legs) : null;
     this.eases = [{ start: 0, phi: 0, tx: 0, tz: 0, turn: 0, sx: 0, sz: 0, px: 0, pz: 0, frames: 0 }];
     this.active = false;   // no correction yet: frames pass through untouched
   }
@@ -76,10 +83,12 @@ export class RootWarp {
 
   /** Frames (flat Float32Array, `frameSize` values each) numbered index.. -> where they stand. */
   joints(index, joints, frameSize) {
-    if (!this.active) return joints;
+    if (!this.active) return this.plant ? this.plant.apply(joints, frameSize, false) : joints;
     const out = new Float32Array(joints.length);
+    const moved = [];   // a frame the warp leaves where it was (the eases before the first correction) is not moved
     for (let o = 0, i = 0; o < joints.length; o += frameSize, i++) {
       const [phi, tx, tz] = this.warpAt(index + i);
+      moved.push(phi !== 0 || tx !== 0 || tz !== 0);
       const c = Math.cos(phi), s = Math.sin(phi);
       for (let j = o; j < o + frameSize; j += 3) {
         const x = joints[j], z = joints[j + 2];   // float32 values, read as float64 as numpy's astype does
@@ -88,6 +97,6 @@ export class RootWarp {
         out[j + 2] = -s * x + c * z + tz;
       }
     }
-    return out;
+    return this.plant ? this.plant.apply(out, frameSize, moved) : out;
   }
 }

@@ -16,6 +16,7 @@
 import { Bundle } from '../bundle/folder.js';
 import { concat, fileLoader, toHex } from '../bundle/io.js';
 import { oneLine, shown } from '../checks.js';
+import { legsOf } from '../control/plant.js';
 import { RootWarp } from '../control/warp.js';
 import { FrameMaker, MAX_CHUNK, checkChunk, decodeDue } from '../decoding.js';
 import { MotionDecoder } from '../engine.js';
@@ -27,8 +28,8 @@ export const MAX_CHARACTERS = 100_000;   // characters one client follows at onc
 
 /** One character as a client knows it: its prompt, the next token it expects, its frames so far. */
 class ClientCharacter {
-  constructor(ident, text, frames, nextSeq) {
-    Object.assign(this, { ident, text, frames, nextSeq, warp: new RootWarp(), ended: false });
+  constructor(ident, text, frames, nextSeq, warp) {
+    Object.assign(this, { ident, text, frames, nextSeq, warp, ended: false });
   }
 }
 
@@ -54,6 +55,7 @@ export class MotionClient {
     Object.assign(this, { bundle, decoder, id, chunk: checkChunk(chunk) });
     this.dims = bundle.manifest.model;
     this.skeleton = bundle.manifest.skeleton;
+    this.legs = legsOf(this.skeleton);
     this.reader = new RecordReader();
     this.characters = new Map();   // ident -> ClientCharacter
     this.hello = null;
@@ -167,7 +169,8 @@ export class MotionClient {
       // frame numbers as the generator's (WARP records name frames); a character that started before the client
       // joined decodes from an empty window, at the origin, unless a SYNC of it follows
       maker.frames = event.seq * this.dims.downsample;
-      this.characters.set(event.character, new ClientCharacter(event.character, event.text, maker, event.seq));
+      this.characters.set(event.character, new ClientCharacter(event.character, event.text, maker, event.seq,
+        new RootWarp(this.legs)));
       return;
     }
     const c = this.#character(event.character);
@@ -210,9 +213,10 @@ export class MotionClient {
     root.previous = sync.root.slice(3, 6);
     [lock.x, lock.z] = sync.root.slice(6, 8);
     lock.previous = sync.toes === null ? null : { toe: sync.toes.map((t) => [...t]), contact: [...sync.contacts] };
-    Object.assign(c, { frames: maker, nextSeq: sync.seq, warp: new RootWarp() });
+    Object.assign(c, { frames: maker, nextSeq: sync.seq, warp: new RootWarp(this.legs) });
     c.warp.eases = sync.eases.map((e) => ({ ...e }));
     c.warp.active = sync.warped;
+    c.warp.plant.load(sync.pinned, sync.plant);
   }
 
   #character(ident) {

@@ -9,7 +9,7 @@
 //   JOINTS  u8 5, u32 character, u32 frame, u16 n, u8 joints, n * joints * 3 f32    (a server's, on request)
 //   TICK    u8 6, u64 tick, f64 time     (a server's: which of its ticks a message holds, its clock in seconds)
 //   SYNC    u8 7, u32 character, u32 seq, u8 pending, u8 rows, u16 n, u8 eases, u8 flags, rows * levels u16 codes,
-//           n f32 decoder state, 12 f64 (root, foot lock), eases * (u32 start, u16 frames, 8 f64)
+//           n f32 decoder state, 20 f64 (root, foot lock, planted feet), eases * (u32 start, u16 frames, 8 f64)
 //                                        (a character's decoder side at token seq, for a client without it)
 //
 // Records are classes, told apart with instanceof as Python's with isinstance; a TOKENS record's codes are a flat
@@ -31,9 +31,9 @@ export const MAX_TEXT_BYTES = 4096;   // an event's text: a prompt (at most 1,00
 
 // the fixed part of each record, in bytes (Python's struct sizes: "<" packs without padding)
 const HELLO_SIZE = 18, TOKENS_SIZE = 10, EVENT_SIZE = 12, WARP_SIZE = 51, JOINTS_SIZE = 12, TICK_SIZE = 17;
-const SYNC_SIZE = 15, SYNC_FLOATS = 12, EASE_SIZE = 70;
+const SYNC_SIZE = 15, SYNC_FLOATS = 20, EASE_SIZE = 70;
 export const MAX_EASES = 3;   // control/warp.js RootWarp keeps 3
-export const TOES = 1, LEFT_CONTACT = 2, RIGHT_CONTACT = 4, WARPED = 8;   // a SYNC's flags
+export const TOES = 1, LEFT_CONTACT = 2, RIGHT_CONTACT = 4, WARPED = 8, LEFT_PINNED = 16, RIGHT_PINNED = 32;   // a SYNC's flags
 const EASE_REALS = ['phi', 'tx', 'tz', 'turn', 'sx', 'sz', 'px', 'pz'];
 
 /** A token stream that breaks the format, or one this client cannot decode. */
@@ -91,11 +91,14 @@ export class Warp {
  * levels) of the last min(seq, receptiveField + pending) tokens, the last `pending` without frames yet;
  * `decoderState` Float32Array, the decoder_step state arrays flattened in order; `root` 8 numbers (half-angle,
  * position x z, previous rot_vel vel_x vel_z, the foot lock's offset x z); `toes` [[x, z], [x, z]] or null;
- * `contacts` [left, right]; `warped` RootWarp.active; `eases` RootWarp's ({start, phi, ..., frames}).
+ * `contacts` [left, right]; `warped` RootWarp.active; `eases` RootWarp's ({start, phi, ..., frames}); `pinned`
+ * [left, right] and `plant` 8 numbers: RootWarp.plant's state (plant.js).
  */
 export class Sync {
-  constructor(character, seq, pending, window, levels, decoderState, root, toes, contacts, warped, eases) {
-    Object.assign(this, { character, seq, pending, window, levels, decoderState, root, toes, contacts, warped, eases });
+  constructor(character, seq, pending, window, levels, decoderState, root, toes, contacts, warped, eases, pinned,
+    plant) {
+    Object.assign(this, { character, seq, pending, window, levels, decoderState, root, toes, contacts, warped, eases,
+      pinned, plant });
   }
 
   get rows() { return this.window.length / this.levels; }
@@ -188,12 +191,12 @@ function encodeSync(r) {
   }
   if (r.window.some((c) => !Number.isInteger(c) || c < 0 || c > 0xFFFF)) throw new WireError('token codes are u16 on the wire');
   const flags = (r.toes !== null ? TOES : 0) | (r.contacts[0] ? LEFT_CONTACT : 0) | (r.contacts[1] ? RIGHT_CONTACT : 0)
-    | (r.warped ? WARPED : 0);
+    | (r.warped ? WARPED : 0) | (r.pinned[0] ? LEFT_PINNED : 0) | (r.pinned[1] ? RIGHT_PINNED : 0);
   const w = new Writer(SYNC_SIZE + 2 * r.window.length + 4 * n + 8 * SYNC_FLOATS + EASE_SIZE * eases);
   w.u8(SYNC).u32(r.character).u32(r.seq).u8(r.pending).u8(rows).u16(n).u8(eases).u8(flags);
   for (const c of r.window) w.u16(c);
   for (const x of r.decoderState) w.f32(x);
-  for (const x of [...r.root, ...(r.toes === null ? [0, 0, 0, 0] : r.toes.flat())]) w.f64(x);
+  for (const x of [...r.root, ...(r.toes === null ? [0, 0, 0, 0] : r.toes.flat()), ...r.plant]) w.f64(x);
   for (const e of r.eases) {
     w.u32(e.start).u16(e.frames);
     for (const k of EASE_REALS) w.f64(e[k]);
@@ -312,7 +315,7 @@ function decodeRecord(data, at, size, levels) {
 function decodeSync(data, view, at, levels) {
   const seq = view.getUint32(at + 5, true), pending = data[at + 9], rows = data[at + 10];
   const n = view.getUint16(at + 11, true), eases = data[at + 13], flags = data[at + 14];
-  if (!(eases >= 1 && eases <= MAX_EASES) || flags > 15 || pending > rows || rows > seq) {
+  if (!(eases >= 1 && eases <= MAX_EASES) || flags > 63 || pending > rows || rows > seq) {
     throw new WireError(`byte ${at}: a SYNC of ${rows} window tokens (${pending} pending) at token ${seq} with `
       + `${eases} eases and flags ${flags}`);
   }
@@ -336,7 +339,8 @@ function decodeSync(data, view, at, levels) {
   }
   const toes = flags & TOES ? [floats.slice(8, 10), floats.slice(10, 12)] : null;
   return new Sync(view.getUint32(at + 1, true), seq, pending, window, levels, state, floats.slice(0, 8), toes,
-    [Boolean(flags & LEFT_CONTACT), Boolean(flags & RIGHT_CONTACT)], Boolean(flags & WARPED), kept);
+    [Boolean(flags & LEFT_CONTACT), Boolean(flags & RIGHT_CONTACT)], Boolean(flags & WARPED), kept,
+    [Boolean(flags & LEFT_PINNED), Boolean(flags & RIGHT_PINNED)], floats.slice(12, 20));
 }
 
 /** Bytes as Python's repr writes them (b'MOGT', b'\x00...'), so the messages are Python's. */

@@ -26,14 +26,15 @@ from .warp import RootWarp, wrap
 
 
 class Steering:
-    def __init__(self, spec: ControlSpec, dims: ModelDims, context):
+    def __init__(self, spec: ControlSpec, dims: ModelDims, context, legs=None):
+        """`legs`: each leg's joints, hip to toe (plant.legs_of) to plant the feet of the frames moved."""
         if spec.dim != control_dim(spec.horizon):
             raise ValueError(f"control dim {spec.dim} does not match a horizon of {spec.horizon} tokens")
         self.spec, self.fps, self.context = spec, dims.fps, context
         self._lock = threading.Lock()     # a request from the game's thread and the stream's update never interleave
         self.times = np.arange(1, spec.horizon + 1) * dims.downsample / dims.fps    # seconds ahead
         self.downsample = dims.downsample
-        self.warp = RootWarp()
+        self.warp = RootWarp(legs)
         self.target = None
         self.pose = np.zeros(3)            # the root of the next frame: frame 0 stands at the origin facing +z
         self.frame = 0                     # the next frame's index
@@ -77,7 +78,8 @@ class Steering:
     def place(self, index: int, joints: np.ndarray) -> np.ndarray:
         """Frames (n, J, 3) numbered index.. as shown: on the game's capsule when the game owns the root (the
         capsule where the game last placed it, moved on by its velocity), else with the correction planned for
-        them. A stream places each frame as it hands it out, so a game that calls set_root before reading a frame
+        them; either way with the feet planted (control/plant.py). A stream places each frame as it hands it out,
+        so a game that calls set_root before reading a frame
         gets that frame on that capsule."""
         target = self.target
         if not isinstance(target, GameRoot) or target.pose is None:
@@ -86,10 +88,10 @@ class Steering:
             return joints
         capsule = np.stack([target.at(f)[:2] for f in range(index, index + len(joints))])
         offsets = (capsule - joints[:, 0, [0, 2]]).astype(joints.dtype)
-        joints = joints.copy()
-        joints[..., 0] += offsets[:, None, 0]
-        joints[..., 2] += offsets[:, None, 1]
-        return joints
+        placed = joints.copy()
+        placed[..., 0] += offsets[:, None, 0]
+        placed[..., 2] += offsets[:, None, 1]
+        return placed if self.warp.plant is None else self.warp.plant.apply(placed, True)
 
 
 class Steerable:

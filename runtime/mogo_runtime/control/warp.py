@@ -20,6 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .plant import FootPlant
+
 MAX_TURN = math.radians(4.5)    # per frame: 90 degrees a second
 MAX_SHIFT = 0.01                # m per frame: 0.2 m/s
 GAIN = 0.5                      # of the error corrected over one token (then read again: a closed loop)
@@ -70,7 +72,10 @@ PLANS_KEPT = 64    # a token-stream writer (wire/tap.py) reads the plans every t
 
 
 class RootWarp:
-    def __init__(self):
+    def __init__(self, legs: tuple[tuple[int, ...], ...] | None = None):
+        """`legs`: each leg's joints, hip to toe (plant.legs_of): the feet the warp moves are planted again
+        (control/plant.py); None: the whole frame moves, feet and all."""
+        self.plant = FootPlant(legs) if legs else None
         self.eases: deque[Ease] = deque([Ease(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)], maxlen=3)
         self.active = False                       # no correction yet: frames pass through untouched
         # `plan`'s arguments as given, newest last, and how many there were: a client that replays them places
@@ -112,9 +117,9 @@ class RootWarp:
         self.active = self.active or turn != 0.0 or norm > 0.0
 
     def joints(self, index: int, joints: np.ndarray) -> np.ndarray:
-        """Frames (n, J, 3) numbered index.. -> where they stand."""
+        """Frames (n, J, 3) numbered index.. (each once, in order) -> where they stand, feet planted."""
         if not self.active:
-            return joints
+            return joints if self.plant is None else self.plant.apply(joints, False)
         out = np.array(joints, np.float64)
         phi, tx, tz = np.array([self._warp(index + i) for i in range(len(out))]).reshape(-1, 3, 1).transpose(1, 0, 2)
         c = np.array([math.cos(a) for a in phi[:, 0]])[:, None]
@@ -122,4 +127,9 @@ class RootWarp:
         x, z = out[:, :, 0], out[:, :, 2]
         # turned(phi, x, z) frame by frame, the same products and sums
         out[:, :, 0], out[:, :, 2] = c * x + s * z + tx, -s * x + c * z + tz
-        return out.astype(joints.dtype)
+        out = out.astype(joints.dtype)
+        if self.plant is None:
+            return out
+        # a frame the warp leaves where it was (the eases before the first correction) is not moved
+        moved = [a != 0.0 or x != 0.0 or z != 0.0 for a, x, z in zip(phi[:, 0], tx[:, 0], tz[:, 0])]
+        return self.plant.apply(out, moved)

@@ -14,13 +14,14 @@ stream: each machine puts the frames on the capsule its own game replicates.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..bundle.folder import Bundle
 from ..bundle.sections import DECODING_GRAPHS
+from ..control.plant import legs_of
 from ..control.warp import Ease, RootWarp
 from ..decoding import MAX_CHUNK, FrameMaker, Frames, check_chunk, decode_due
 from ..engine import MotionDecoder
@@ -37,7 +38,7 @@ class ClientCharacter:
     text: str
     frames: FrameMaker
     next_seq: int
-    warp: RootWarp = field(default_factory=RootWarp)
+    warp: RootWarp
     ended: bool = False
 
 
@@ -49,6 +50,7 @@ class MotionClient:
         self.bundle = bundle if isinstance(bundle, Bundle) else Bundle.load(bundle, variant, DECODING_GRAPHS)
         self.decoder = MotionDecoder(self.bundle, variant, threads)
         self.dims, self.skeleton, self.chunk = self.bundle.dims, self.bundle.skeleton, check_chunk(chunk)
+        self.legs = legs_of(self.skeleton)
         self.id = decoder_id(self.bundle.manifest, variant)
         self.reader = RecordReader()
         self.characters: dict[int, ClientCharacter] = {}
@@ -128,7 +130,8 @@ class MotionClient:
             # frame numbers as the generator's (WARP records name frames); a character that started before the
             # client joined decodes from an empty window, at the origin, unless a SYNC of it follows
             maker.frames = event.seq * self.dims.downsample
-            self.characters[event.character] = ClientCharacter(event.character, event.text, maker, event.seq)
+            self.characters[event.character] = ClientCharacter(event.character, event.text, maker, event.seq,
+                                                               RootWarp(self.legs))
             return
         c = self._character(event.character)
         if event.event == PROMPT:
@@ -165,10 +168,11 @@ class MotionClient:
         root.angle, root.position, root.previous = float(sync.root[0]), sync.root[1:3].copy(), sync.root[3:6].copy()
         lock.offset = sync.root[6:8].copy()
         lock.previous = None if sync.toes is None else (sync.toes.copy(), np.array(sync.contacts))
-        c.frames, c.next_seq, c.warp = maker, sync.seq, RootWarp()
+        c.frames, c.next_seq, c.warp = maker, sync.seq, RootWarp(self.legs)
         c.warp.eases.clear()
         c.warp.eases.extend(Ease(*e) for e in sync.eases)
         c.warp.active = sync.warped
+        c.warp.plant.load(sync.pinned, sync.plant)
 
     def _character(self, ident: int) -> ClientCharacter:
         c = self.characters.get(ident)

@@ -11,7 +11,7 @@ A stream is a sequence of records, each self-delimiting, all integers little-end
     TICK    u8 6, u64 tick, f64 time         (a server's: which of its ticks a message holds, and when it was sent
                                               by the server's monotonic clock in seconds)
     SYNC    u8 7, u32 character, u32 seq, u8 pending, u8 rows, u16 n, u8 eases, u8 flags, rows * levels u16 codes,
-            n f32 decoder state, 12 f64 (root, foot lock), eases * (u32 start, u16 frames, 8 f64)
+            n f32 decoder state, 20 f64 (root, foot lock, planted feet), eases * (u32 start, u16 frames, 8 f64)
                                              (a character's decoder side at token seq, for a client without it)
 
 A HELLO comes first: the client checks it has the decoder the tokens were made for (`decoder_id`: the decoder and
@@ -20,7 +20,8 @@ Every character's tokens come with consecutive sequence numbers from its START; 
 END is an error, never a frame made from the wrong context. A WARP carries a steered character's root correction
 (control/warp.py: `RootWarp.plan`'s arguments) so the client places frames where the generator placed them. A SYNC
 hands a client the decoder side of a character it joins late (or lost): the decoding window, the decoder_step state,
-the root integrator, the foot lock and the root warp, so its frames from there on are the generator's too.
+the root integrator, the foot lock, the root warp and its planted feet, so its frames from there on are the
+generator's too.
 
 A WebSocket message holds whole records; `RecordReader` also reassembles records cut anywhere (a TCP stream, a file).
 """
@@ -50,10 +51,10 @@ _WARP = struct.Struct("<BIIH5d")
 _JOINTS = struct.Struct("<BIIHB")
 _TICK = struct.Struct("<BQd")
 _SYNC = struct.Struct("<BIIBBHBB")
-_SYNC_FLOATS = struct.Struct("<12d")
+_SYNC_FLOATS = struct.Struct("<20d")
 _EASE = struct.Struct("<IH8d")
 MAX_EASES = 3                  # control/warp.py RootWarp keeps 3
-TOES, LEFT_CONTACT, RIGHT_CONTACT, WARPED = 1, 2, 4, 8      # a SYNC's flags
+TOES, LEFT_CONTACT, RIGHT_CONTACT, WARPED, LEFT_PINNED, RIGHT_PINNED = 1, 2, 4, 8, 16, 32     # a SYNC's flags
 
 
 class WireError(ValueError):
@@ -123,6 +124,9 @@ class Sync:
     contacts: tuple[bool, bool]      # the last frame's toe contacts
     warped: bool                     # RootWarp.active
     eases: tuple[tuple, ...]         # RootWarp.eases: 1 to 3 (start, phi, tx, tz, turn, sx, sz, px, pz, frames)
+    pinned: tuple[bool, bool]        # RootWarp.plant: whether each toe (left, right) is planted
+    plant: np.ndarray                # (8,) float64: per leg the planted toe's x z (0 where not) and the foot's
+                                     # offset x z (control/plant.py)
 
 
 Record = Hello | Tokens | Event | Warp | Joints | Tick | Sync
@@ -180,17 +184,19 @@ def _encode_sync(r: Sync) -> bytes:
     if len(window) and (window.min() < 0 or window.max() > 0xFFFF):
         raise WireError("token codes are u16 on the wire")
     flags = (TOES if r.toes is not None else 0) | (LEFT_CONTACT if r.contacts[0] else 0) | \
-        (RIGHT_CONTACT if r.contacts[1] else 0) | (WARPED if r.warped else 0)
+        (RIGHT_CONTACT if r.contacts[1] else 0) | (WARPED if r.warped else 0) | \
+        (LEFT_PINNED if r.pinned[0] else 0) | (RIGHT_PINNED if r.pinned[1] else 0)
     toes = np.zeros(4) if r.toes is None else np.asarray(r.toes, np.float64).ravel()
     return b"".join([
         _SYNC.pack(SYNC, r.character, r.seq, r.pending, len(window), len(state), len(r.eases), flags),
-        window.astype("<u2").tobytes(), state.tobytes(), _SYNC_FLOATS.pack(*np.asarray(r.root, np.float64), *toes),
+        window.astype("<u2").tobytes(), state.tobytes(), _SYNC_FLOATS.pack(*np.asarray(r.root, np.float64), *toes,
+                                                             *np.asarray(r.plant, np.float64)),
         *(_EASE.pack(int(e[0]), int(e[9]), *map(float, e[1:9])) for e in r.eases)])
 
 
 def _decode_sync(data, at: int, levels: int) -> Sync:
     _, character, seq, pending, rows, n, eases, flags = _SYNC.unpack_from(data, at)
-    if not 1 <= eases <= MAX_EASES or flags > 15 or pending > rows or rows > seq:
+    if not 1 <= eases <= MAX_EASES or flags > 63 or pending > rows or rows > seq:
         raise WireError(f"byte {at}: a SYNC of {rows} window tokens ({pending} pending) at token {seq} with {eases} "
                         f"eases and flags {flags}")
     o = at + _SYNC.size
@@ -209,7 +215,8 @@ def _decode_sync(data, at: int, levels: int) -> Sync:
         raise WireError(f"byte {at}: a SYNC of non-finite numbers")
     toes = floats[8:12].reshape(2, 2) if flags & TOES else None
     return Sync(character, seq, pending, window, state, floats[:8], toes,
-                (bool(flags & LEFT_CONTACT), bool(flags & RIGHT_CONTACT)), bool(flags & WARPED), tuple(kept))
+                (bool(flags & LEFT_CONTACT), bool(flags & RIGHT_CONTACT)), bool(flags & WARPED), tuple(kept),
+                (bool(flags & LEFT_PINNED), bool(flags & RIGHT_PINNED)), floats[12:20])
 
 
 def _size(data: bytes | memoryview, at: int, levels: int) -> int | None:

@@ -15,6 +15,7 @@ import json
 
 import numpy as np
 
+from ..control.plant import STATE_FLOATS
 from .format import CONTROL, END, PROMPT, RESTART, START, Event, Record, Sync, Tokens, Warp, WireError
 
 
@@ -42,11 +43,12 @@ def sync(character, ident: int) -> Sync:
     warp = character.steering.warp if character.steering is not None else None
     eases = tuple(warp.eases) if warp is not None else ((0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0),)
     window = maker.window(rows).copy() if rows else maker.tokens[:0].copy()
+    pinned, plant = warp.plant.state() if warp is not None else ([False, False], [0.0] * STATE_FLOATS)
     return Sync(ident, maker.count, maker.pending, window, state,
                 np.array([root.angle, *root.position, *root.previous, *lock.offset], np.float64),
                 None if lock.previous is None else lock.previous[0].copy(),
                 (False, False) if lock.previous is None else tuple(bool(x) for x in lock.previous[1]),
-                warp is not None and warp.active, eases)
+                warp is not None and warp.active, eases, tuple(pinned), np.array(plant, np.float64))
 
 
 class CharacterTap:
