@@ -153,7 +153,8 @@ test("a broken stream is refused with the Python client's message", async () => 
 
 test("planted feet are Python's to the bit, in any chunks, with the same state", () => {
   const p = ref.plant, frameSize = p.joints * 3;
-  const input = new Float32Array(bytes(p.input).buffer.slice(0)), want = new Float32Array(bytes(p.output).buffer.slice(0));
+  const input = new Float32Array(bytes(p.input).buffer.slice(0));
+  const want = new Float32Array(bytes(p.output).buffer.slice(0));
   const plant = new FootPlant(legsOf(SKELETONS.humanml3d)), out = [];
   let at = 0;
   for (const n of p.chunks) {

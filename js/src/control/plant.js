@@ -14,7 +14,9 @@ export function legsOf(skeleton) {
   return [skeleton.footLeft[1], skeleton.footRight[1]].map((toe) => {
     const chain = [toe];
     while (p[chain[chain.length - 1]] !== root) chain.push(p[chain[chain.length - 1]]);
-    if (chain.length < 4) throw new RangeError(`skeleton ${skeleton.name}: a leg of hip, knee, ankle and toe is needed to plant feet`);
+    if (chain.length < 4) {
+      throw new RangeError(`skeleton ${skeleton.name}: a leg of hip, knee, ankle and toe is needed to plant feet`);
+    }
     return chain.reverse();
   });
 }

@@ -1,7 +1,7 @@
 // One stream's control (runtime/mogo_runtime/control/steering.py): the game's request (a target from targets.js, or
 // none), the root pose the stream's frames have reached, and the control vector its next token is picked with.
 //
-//   const steering = new Steering(spec, dims, context);   // context: the stream's endless.js StreamContext
+//   const steering = new Steering(spec, dims, context, legs);   // context: the stream's StreamContext; legs: legsOf
 //   steering.request(() => new WalkTo([4, 2]));          // between two frames
 //   steering.update(nextIndex, frameJoints);             // after each token's frames: the pose read, the next
 //                                                         // token's control handed to the context
@@ -16,7 +16,7 @@ import { RootWarp, wrap } from './warp.js';
 
 export class Steering {
   /** `legs`: [hip, knee, ankle, toe] of each leg (plant.js legsOf) to plant the feet of the frames moved. */
-  constructor(spec, dims, context, legs = null) {
+  constructor(spec, dims, context, legs) {
     if (spec.dim !== controlDim(spec.horizon)) {
       throw new RangeError(`control dim ${spec.dim} does not match a horizon of ${spec.horizon} tokens`);
     }
@@ -87,7 +87,7 @@ export class Steering {
         joints[j + 2] += dz;
       }
     }
-    return this.warp.plant ? this.warp.plant.apply(joints, frameSize, true) : joints;
+    return this.warp.plant.apply(joints, frameSize, true);
   }
 }
 

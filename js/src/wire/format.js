@@ -33,7 +33,8 @@ export const MAX_TEXT_BYTES = 4096;   // an event's text: a prompt (at most 1,00
 const HELLO_SIZE = 18, TOKENS_SIZE = 10, EVENT_SIZE = 12, WARP_SIZE = 51, JOINTS_SIZE = 12, TICK_SIZE = 17;
 const SYNC_SIZE = 15, SYNC_FLOATS = 20, EASE_SIZE = 70;
 export const MAX_EASES = 3;   // control/warp.js RootWarp keeps 3
-export const TOES = 1, LEFT_CONTACT = 2, RIGHT_CONTACT = 4, WARPED = 8, LEFT_PINNED = 16, RIGHT_PINNED = 32;   // a SYNC's flags
+// a SYNC's flags
+export const TOES = 1, LEFT_CONTACT = 2, RIGHT_CONTACT = 4, WARPED = 8, LEFT_PINNED = 16, RIGHT_PINNED = 32;
 const EASE_REALS = ['phi', 'tx', 'tz', 'turn', 'sx', 'sz', 'px', 'pz'];
 
 /** A token stream that breaks the format, or one this client cannot decode. */

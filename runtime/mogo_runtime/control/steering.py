@@ -1,8 +1,8 @@
 """One stream's control: the game's request (a target from control/targets.py, or none), the root pose the stream's
 frames have reached, and the control vector its next token is picked with.
 
-    steering = Steering(spec, dims, context)     # context: the stream's endless.StreamContext
-    steering.request(lambda s: WalkTo((4.0, 2.0)))     # from any thread
+    steering = Steering(spec, dims, context, legs)   # context: the stream's endless.StreamContext; legs: legs_of
+    steering.request(lambda s: WalkTo((4.0, 2.0)))   # from any thread
     steering.update(next_index, frame_joints)    # after each token's frames: the pose read, the next token's
                                                  # control handed to the context
     joints = steering.place(index, joints)       # frames as shown: on the game's capsule when it owns the root
@@ -26,8 +26,8 @@ from .warp import RootWarp, wrap
 
 
 class Steering:
-    def __init__(self, spec: ControlSpec, dims: ModelDims, context, legs=None):
-        """`legs`: each leg's joints, hip to toe (plant.legs_of) to plant the feet of the frames moved."""
+    def __init__(self, spec: ControlSpec, dims: ModelDims, context, legs: tuple[tuple[int, ...], ...]):
+        """`legs`: each leg's joints, hip to toe (plant.legs_of), to plant the feet of the frames moved."""
         if spec.dim != control_dim(spec.horizon):
             raise ValueError(f"control dim {spec.dim} does not match a horizon of {spec.horizon} tokens")
         self.spec, self.fps, self.context = spec, dims.fps, context
@@ -79,8 +79,7 @@ class Steering:
         """Frames (n, J, 3) numbered index.. as shown: on the game's capsule when the game owns the root (the
         capsule where the game last placed it, moved on by its velocity), else with the correction planned for
         them; either way with the feet planted (control/plant.py). A stream places each frame as it hands it out,
-        so a game that calls set_root before reading a frame
-        gets that frame on that capsule."""
+        so a game that calls set_root before reading a frame gets that frame on that capsule."""
         target = self.target
         if not isinstance(target, GameRoot) or target.pose is None:
             return self.warp.joints(index, joints)
@@ -91,7 +90,7 @@ class Steering:
         placed = joints.copy()
         placed[..., 0] += offsets[:, None, 0]
         placed[..., 2] += offsets[:, None, 1]
-        return placed if self.warp.plant is None else self.warp.plant.apply(placed, True)
+        return self.warp.plant.apply(placed, True)
 
 
 class Steerable:
