@@ -169,7 +169,8 @@ def test_a_client_that_lost_its_decoder_joins_where_the_character_is(gen, portab
     first, away, fresh = asyncio.run(main())
     crowd = Crowd(gen, chunk=1)
     ch = crowd.add("a person walks forward", seed=1)
-    want = np.concatenate([crowd.tick()[ch].joints for _ in range(fresh[-1][0] // gen.dims.downsample + 1)])
+    last = max(index + len(joints) for index, joints in first + away + fresh)    # a's frames may outlast b's
+    want = np.concatenate([crowd.tick()[ch].joints for _ in range(-(-last // gen.dims.downsample))])
     # each joined where the character was (b may repeat a's last frames: the tokens a SYNC leaves pending, or all of
     # them when no tick came between the two)
     assert away[0][0] >= first[-1][0] + 4 * gen.dims.downsample and fresh[0][0] >= away[0][0]
@@ -562,6 +563,9 @@ def test_a_request_its_server_got_as_it_died_is_sent_again_to_the_next(gen):
             while True:
                 await tokens_of(c, {walker: len(got[walker]) + 1}, got, switches, timeout=10)
         await c.close()
+        with pytest.raises(ConnectionError, match="not connected"):     # a request while down: refused, not kept
+            await c.request(walker, prompt="a person waves with the right hand")
+        assert list(c.unapplied) == [2]
         c.url = url_b
         welcome = await c.reconnect()
         assert welcome["server"] == b.id and welcome["applied"] == 1

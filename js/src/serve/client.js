@@ -12,8 +12,8 @@
 // that joins a session afresh (`connect(..., { session })`) names no character; the server sends each as a START and
 // a SYNC of where it is now, and the frames go on from there. Requests (`request`, `joints`) are numbered and kept
 // in `unapplied` until the server says it carried them out; `reconnect()` sends again those its welcome does not
-// count, so one its server got in the tick it died in is not lost, and a request made while the connection is down
-// goes out on reconnecting.
+// count, so one its server got in the tick it died in is not lost. A request while the connection is down throws
+// ConnectionClosed (the caller decides what still matters once it reconnects).
 //
 // The socket is the global WebSocket (browsers, Node 22 and later; Node 20 has it behind --experimental-websocket)
 // or the `WebSocket` option. Every message, text or binary, is handled in arrival order, one after another (the
@@ -283,13 +283,16 @@ export class ServerClient {
     this.#numbered({ op: 'joints', id: ident, on });
   }
 
-  /** Send `msg` with the next request number, kept until applied; while the connection is down, on reconnect(). */
+  /** Send `msg` with the next request number, kept until applied (during a reconnect(), sent by it). */
   #numbered(msg) {
+    const conn = this.#conn;
+    if (!conn || conn.failed || conn.ws.readyState > 1) {
+      throw new ConnectionClosed(`not connected to ${this.url}${conn ? '' : ' (closed; reconnect() first)'}`);
+    }
     this.numbered += 1;
     const message = JSON.stringify({ ...msg, n: this.numbered });
     this.unapplied.set(this.numbered, message);
-    const conn = this.#conn;
-    if (conn?.ready && conn.ws.readyState === 1) conn.ws.send(message);
+    if (conn.ready) conn.ws.send(message);
   }
 
   async remove(ident) {

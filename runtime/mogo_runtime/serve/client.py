@@ -10,8 +10,8 @@ requests, and receive their records; with a bundle, their frames too (decoded he
 `next_seq` holds the next token expected of each character: `reconnect()` hands it to the server, which sends what
 was missed, so a dropped connection (or a server restarted on its saved state) loses and repeats nothing. Requests
 (`request`, `joints`) are numbered and kept in `unapplied` until the server says it carried them out; `reconnect()`
-sends again those its welcome does not count, so one its server got in the tick it died in is not lost, and a
-request made while the connection is down goes out on reconnecting. A client
+sends again those its welcome does not count, so one its server got in the tick it died in is not lost. A request
+while the connection is down raises ConnectionError (the caller decides what still matters once it reconnects). A client
 that joins a session afresh (`connect(..., session=S)`: a game restarted, a page reloaded) names no character; the
 server sends each as a START and a SYNC of where it is now, and the frames go on from there.
 """
@@ -45,6 +45,7 @@ class ServerClient:
         self.levels: int | None = None
         self.unapplied: dict[int, str] = {}      # request number -> the message, until the server applied it
         self.numbered = 0                        # the last request number used
+        self._connecting = False                 # a reconnect() runs: a request made now waits for it
 
     @classmethod
     async def connect(cls, url: str, token: str, bundle=None, variant: str = "fp32", origin: str | None = None,
@@ -57,10 +58,17 @@ class ServerClient:
 
     async def reconnect(self) -> dict:
         """Connect (again): a new session the first time, then the same one, from the tokens expected next."""
-        from websockets.asyncio.client import connect
-
         if self._ws is not None:
             await self.close()
+        self._connecting = True
+        try:
+            return await self._handshake()
+        finally:
+            self._connecting = False
+
+    async def _handshake(self) -> dict:
+        from websockets.asyncio.client import connect
+
         ws = await connect(self.url, origin=self.origin, compression=None, max_size=16 << 20)
         hello = {"op": "hello", "token": self.token}
         if self.session is not None:
@@ -145,16 +153,18 @@ class ServerClient:
         await self._numbered({"op": "joints", "id": ident, "on": on})
 
     async def _numbered(self, msg: dict) -> None:
-        """Send `msg` with the next request number, kept until applied; while the connection is down, on
-        reconnect()."""
+        """Send `msg` with the next request number, kept until applied (during a reconnect(), sent by it)."""
         from websockets.exceptions import ConnectionClosed
 
+        connected = self._ws is not None and self._reader is not None and not self._reader.done()
+        if not connected and not self._connecting:
+            raise ConnectionError(f"not connected to {self.url}: reconnect() first")
         self.numbered += 1
         message = self.unapplied[self.numbered] = json.dumps({**msg, "n": self.numbered})
-        if self._ws is not None:
+        if connected:
             try:
                 await self._ws.send(message)
-            except ConnectionClosed:     # kept: the next reconnect() sends it
+            except ConnectionClosed:     # it went as this was sent: kept, the next reconnect() sends it
                 pass
 
     async def remove(self, ident: int) -> None:
