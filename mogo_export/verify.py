@@ -30,6 +30,7 @@ from mogo_runtime.bundle.folder import Bundle
 from mogo_runtime.bundle.manifest import COMPACT, INT8_FIXED
 from mogo_runtime.bundle.sampling import GREEDY
 from mogo_runtime.control import FollowPath, Steer, Steering, WalkTo
+from mogo_runtime.control.plant import legs_of
 from mogo_runtime.decoding import GenerationTask, decode_tokens
 from mogo_runtime.engine import FixedCache, FixedCacheBackend, OrtBackend, open_backend
 from mogo_runtime.kinematics.features import recover_from_ric
@@ -211,7 +212,7 @@ def controlled_tokens(backend, skeleton, streaming, steps: int, change_every: in
     task = GenerationTask(backend, skeleton, GREEDY, steps, steps, streaming)
     emb = backend.encode_text(prompts[:1])
     loop = task.loop(emb, [0])
-    steering = Steering(backend.control, backend.dims, loop.streams[0])
+    steering = Steering(backend.control, backend.dims, loop.streams[0], legs_of(skeleton))
     rng = np.random.default_rng(0)
     requests = [lambda: WalkTo(rng.uniform(-6, 6, 2), rng.uniform(0.8, 3.0)),
                 lambda: FollowPath(np.cumsum(rng.uniform(-3, 3, (5, 2)), axis=0), rng.uniform(0.8, 3.0)),
