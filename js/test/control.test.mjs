@@ -31,7 +31,12 @@ test('control vectors, wanted poses and the next root pose: Python\'s numbers', 
   let worst = 0;
   for (const r of units.requests) {
     const target = new TARGETS[r.kind](...r.args);
-    r.nows.forEach((now, i) => { worst = Math.max(worst, maxAbsDiff(target.future(now, units.times).flat(), r.futures[i].flat())); });
+    r.nows.forEach((now, i) => {
+      worst = Math.max(worst, maxAbsDiff(target.future(now, units.times).flat(), r.futures[i].flat()));
+      const reference = target.reference();
+      assert.equal(reference === null, r.references[i] === null, `${r.kind} reference at pose ${i}`);
+      if (reference !== null) worst = Math.max(worst, maxAbsDiff(reference, r.references[i]));
+    });
     assert.equal(target.arrived, r.arrived, `${r.kind} arrived`);
     if (r.progress !== undefined) assert.ok(Math.abs(target.progress - r.progress) <= 1e-12, `${r.kind} progress`);
   }

@@ -117,9 +117,13 @@ def control_unit_cases(rng) -> dict:
     requests = []
 
     def walk(make, args, nows, *extra):      # one request asked at every pose of a walk, as a stream asks it
-        target = make(*args)
-        out = [target.future(now, np.array(times), *extra).tolist() for now in nows]
+        target, out, references = make(*args), [], []
+        for now in nows:                     # the wanted poses, then where the correction steers to (or None)
+            out.append(target.future(now, np.array(times), *extra).tolist())
+            reference = target.reference()
+            references.append(None if reference is None else reference.tolist())
         requests.append({"kind": make.__name__, "args": args, "nows": nows.tolist(), "futures": out,
+                         "references": references,
                          "arrived": target.arrived, **({"progress": target.progress} if hasattr(target, "progress") else {})})
 
     for _ in range(6):

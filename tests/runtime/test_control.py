@@ -295,6 +295,36 @@ def test_the_correction_is_bounded_per_frame_and_closes_the_error():
     assert GAIN < 1                                                      # a share per token: the loop reads again
 
 
+def test_a_character_that_reached_its_goal_is_held_there(tiny_bundle):
+    """A model that walks on after its walk_to goal is reached (here at 0.1 m/s, under the correction's bound) is
+    pulled back to the goal by the correction, as a path holds its character: after 10 s it still stands within
+    ARRIVE of the goal, where it would have drifted a metre."""
+    from mogo_runtime.control.steering import Steering
+
+    gen = MotionGenerator(tiny_bundle)
+    ds = gen.dims.downsample
+
+    class Context:
+        def steer(self, vector):
+            pass
+
+    class Model:              # the root walks at 0.1 m/s along +x, whatever it is asked
+        index = 0
+
+        def next_pose(self):
+            return np.array([0.1 * self.index / gen.dims.fps, 0.0, 0.0])
+
+    steering, model = Steering(gen.backend.control, gen.dims, Context(), None), Model()
+    goal = (0.05, 0.0)
+    steering.request(lambda s: WalkTo(goal))
+    for token in range(round(10 * gen.dims.fps / ds)):
+        model.index = (token + 1) * ds
+        steering.update(model.index, model)
+    assert steering.target.arrived
+    assert np.hypot(*(steering.pose[:2] - goal)) < ARRIVE
+    assert model.next_pose()[0] > 0.9                       # where the model alone stands: a metre on
+
+
 def test_a_frame_shown_after_the_next_plan_keeps_its_own_ease():
     from mogo_runtime.control.warp import RootWarp
 

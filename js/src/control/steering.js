@@ -63,7 +63,7 @@ export class Steering {
     const wanted = this.wanted();
     this.context.steer(encode(pose, wanted));
     if (!(target instanceof GameRoot)) {   // the next token's correction, toward where it should be (warp.js)
-      const reference = target.reference(pose);
+      const reference = target.reference();
       this.warp.plan(index, this.downsample, pose, wrap(wanted[0][2] - pose[2]),
         reference === null ? [0, 0] : [reference[0] - pose[0], reference[1] - pose[1]]);
     }

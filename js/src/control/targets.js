@@ -57,8 +57,8 @@ export class WalkTo {
     this.arrived = false;
   }
 
-  /** Where the root should be now, if the request says (a path does): null. */
-  reference() { return null; }
+  /** Where the root should be now: the goal once reached (the correction holds it there), else null. */
+  reference() { return this.arrived ? [this.goal[0], this.goal[1]] : null; }
 
   future(now, times) {
     const away = [this.goal[0] - now[0], this.goal[1] - now[1]], dist = Math.hypot(away[0], away[1]);
@@ -137,9 +137,9 @@ export class FollowPath {
     return Math.max(this.progress, this.starts[best] + bestAlong);
   }
 
-  /** Where the root should be now: the point of the path nearest it (past the progress so far). */
-  reference(now) {
-    const [x, z] = this.at(this.nearest(now));
+  /** Where the root should be now: the point of the path nearest it (the progress `future` found). */
+  reference() {
+    const [x, z] = this.at(this.progress);
     return [x, z];
   }
 

@@ -47,6 +47,9 @@ def legs_of(skeleton) -> tuple[tuple[int, ...], ...]:
 class FootPlant:
     def __init__(self, legs: tuple[tuple[int, ...], ...]):
         self.legs = legs
+        # the legs' joints, and each leg as positions among them: only those rows are read and written
+        self._joints = sorted({j for leg in legs for j in leg})
+        self._legs = [tuple(self._joints.index(j) for j in leg) for leg in legs]
         self.pins: list[tuple[float, float] | None] = [None] * len(legs)     # a planted toe's (x, z)
         self.offsets: list[tuple[float, float]] = [(0.0, 0.0)] * len(legs)  # the foot's shift on the last frame
 
@@ -59,11 +62,11 @@ class FootPlant:
         if not any(moved) and not any(self.pins) and not any(dx or dz for dx, dz in self.offsets):
             return joints
         out = joints.copy()
-        for frame, m in zip(out, moved):
-            rows = frame.tolist()         # float64 values of the float32 joints
-            for i, leg in enumerate(self.legs):
+        frames = out[:, self._joints].tolist()      # float64 values of the float32 joints
+        for rows, m in zip(frames, moved):
+            for i, leg in enumerate(self._legs):
                 self._leg(i, leg, rows, m)
-            frame[:] = rows               # float32 again
+        out[:, self._joints] = frames               # float32 again
         return out
 
     def _leg(self, i: int, leg: tuple[int, ...], rows: list[list[float]], moved: bool) -> None:
@@ -76,10 +79,13 @@ class FootPlant:
         else:
             pin = None
             dx, dz = self.offsets[i][0] * RELEASE, self.offsets[i][1] * RELEASE
-        l1 = _distance(hip, knee)
-        l2 = _distance(knee, ankle)
+        hx, hy, hz = hip
+        kx, ky, kz = knee
+        ax, ay, az = ankle
+        l1 = math.sqrt((kx - hx) * (kx - hx) + (ky - hy) * (ky - hy) + (kz - hz) * (kz - hz))
+        l2 = math.sqrt((ax - kx) * (ax - kx) + (ay - ky) * (ay - ky) + (az - kz) * (az - kz))
         reach = REACH * (l1 + l2)
-        bx, by, bz = ankle[0] - hip[0], ankle[1] - hip[1], ankle[2] - hip[2]
+        bx, by, bz = ax - hx, ay - hy, az - hz
         ex, ez = bx + dx, bz + dz
         if ex * ex + by * by + ez * ez > reach * reach:
             # shorten the offset along itself: |b + s d| = reach, 0 <= s < 1 (s = 0 where the motion itself is

@@ -71,7 +71,7 @@ class Steering:
             wanted = self._wanted()
             self.context.steer(encode(pose, wanted))
             if not isinstance(target, GameRoot):      # the next token's correction, toward where it should be
-                reference = target.reference(pose)
+                reference = target.reference()
                 self.warp.plan(index, self.downsample, pose, wrap(float(wanted[0, 2] - pose[2])),
                                (0.0, 0.0) if reference is None else reference - pose[:2])
 

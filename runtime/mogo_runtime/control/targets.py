@@ -73,9 +73,10 @@ class WalkTo:
     """Go to `goal` (x, z) at `speed`, facing it; within ARRIVE of it, stand (facing as it arrived) until given
     another request."""
 
-    def reference(self, now: np.ndarray) -> None:
-        """Where the root should be now, if the request says (a path does): None, the goal is ahead."""
-        return None
+    def reference(self) -> np.ndarray | None:
+        """Where the root should be now, if the request says (once `future` has read the root): the goal once
+        reached (the character stands there: the correction holds it), else None (the goal is ahead)."""
+        return self.goal.copy() if self.arrived else None
 
     def __init__(self, goal, speed: float = 1.3):
         self.goal, self.speed, self.arrived = _point("goal", goal), _speed(speed), False
@@ -121,17 +122,20 @@ class FollowPath:
         self.lengths = np.hypot(seg[:, 0], seg[:, 1])
         self.directions = seg / self.lengths[:, None]
         self.starts = np.concatenate([[0.0], np.cumsum(self.lengths)])   # arc length at each point
-        self._starts = self.starts.tolist()      # for bisect: searchsorted's answers, without its cost per call
-        self.yaws = np.arctan2(self.directions[:, 0], self.directions[:, 1])     # each segment's
+        # as lists for `at` and bisect: Python floats, without numpy's cost per call
+        self._starts = self.starts.tolist()
+        self._points, self._directions = self.points.tolist(), self.directions.tolist()
+        self._yaws = np.arctan2(self.directions[:, 0], self.directions[:, 1]).tolist()     # each segment's
         self.total = float(self.starts[-1])
         self.speed, self.progress, self.arrived = _speed(speed), 0.0, False
 
-    def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Arc lengths (n,) -> points (n, 2) and the path's yaw there (the segment's direction)."""
-        s = np.minimum(np.maximum(s, 0.0), self.total)     # np.clip's values, at a third of its cost
-        k = np.minimum(np.maximum(np.searchsorted(self.starts, s, side="right") - 1, 0), len(self.lengths) - 1)
-        xz = self.points[k] + self.directions[k] * (s - self.starts[k])[:, None]
-        return xz, self.yaws[k]
+    def at(self, s: float) -> tuple[float, float, float]:
+        """An arc length (clipped to the path) -> the point there (x, z) and the path's yaw there (the segment's
+        direction). Python floats: a token asks for a few points, where numpy's calls cost more than the arithmetic."""
+        s = min(max(s, 0.0), self.total)
+        k = min(max(bisect_right(self._starts, s) - 1, 0), len(self._yaws) - 1)
+        (px, pz), (dx, dz), along = self._points[k], self._directions[k], s - self._starts[k]
+        return px + dx * along, pz + dz * along, self._yaws[k]
 
     def nearest(self, xz: np.ndarray) -> float:
         """Arc length of the point of the path nearest `xz`, searched from the progress so far to LOOKAHEAD on."""
@@ -147,9 +151,9 @@ class FollowPath:
         best = int(np.argmin(np.hypot(foot[:, 0], foot[:, 1])))
         return float(max(self.progress, self._starts[first + best] + along[best]))
 
-    def reference(self, now: np.ndarray) -> np.ndarray:
-        """Where the root should be now: the point of the path nearest it (past the progress so far)."""
-        return self.at(np.array([self.nearest(now[:2])]))[0][0]
+    def reference(self) -> np.ndarray:
+        """Where the root should be now: the point of the path nearest it (the progress `future` found)."""
+        return np.array(self.at(self.progress)[:2])
 
     def future(self, now: np.ndarray, times: np.ndarray) -> np.ndarray:
         self.progress = self.nearest(now[:2])
@@ -157,8 +161,7 @@ class FollowPath:
         self.arrived = self.arrived or (self.total - self.progress < ARRIVE and float(np.hypot(*end)) < ARRIVE)
         if self.arrived:
             return _stand(now, len(times))
-        xz, yaw = self.at(self.progress + self.speed * times)
-        return np.concatenate([xz, yaw[:, None]], axis=1)
+        return np.array([self.at(self.progress + self.speed * t) for t in times.tolist()])
 
 
 class Steer:
@@ -174,7 +177,7 @@ class Steer:
             raise ValueError("facing must be a direction (x, z), not (0, 0)")
         self.arrived = False
 
-    def reference(self, now: np.ndarray) -> None:
+    def reference(self) -> None:
         return None
 
     def future(self, now: np.ndarray, times: np.ndarray) -> np.ndarray:

@@ -120,10 +120,11 @@ class RootWarp:
         """Frames (n, J, 3) numbered index.. (each once, in order) -> where they stand, feet planted."""
         if not self.active:
             return joints if self.plant is None else self.plant.apply(joints, False)
+        warps = [self._warp(index + i) for i in range(len(joints))]       # (phi, tx, tz) per frame
+        c = np.array([[math.cos(phi)] for phi, _, _ in warps])
+        s = np.array([[math.sin(phi)] for phi, _, _ in warps])
+        tx, tz = np.array([[w[1]] for w in warps]), np.array([[w[2]] for w in warps])
         out = np.array(joints, np.float64)
-        phi, tx, tz = np.array([self._warp(index + i) for i in range(len(out))]).reshape(-1, 3, 1).transpose(1, 0, 2)
-        c = np.array([math.cos(a) for a in phi[:, 0]])[:, None]
-        s = np.array([math.sin(a) for a in phi[:, 0]])[:, None]
         x, z = out[:, :, 0], out[:, :, 2]
         # turned(phi, x, z) frame by frame, the same products and sums
         out[:, :, 0], out[:, :, 2] = c * x + s * z + tx, -s * x + c * z + tz
@@ -131,5 +132,4 @@ class RootWarp:
         if self.plant is None:
             return out
         # a frame the warp leaves where it was (the eases before the first correction) is not moved
-        moved = [a != 0.0 or x != 0.0 or z != 0.0 for a, x, z in zip(phi[:, 0], tx[:, 0], tz[:, 0])]
-        return self.plant.apply(out, moved)
+        return self.plant.apply(out, [w != (0.0, 0.0, 0.0) for w in warps])

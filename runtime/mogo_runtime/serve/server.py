@@ -286,7 +286,8 @@ class MotionServer:
             ws, session.queue, session.ws = session.ws, None, None
             session.gone_at, session.live = time.monotonic(), False
             if ws is not None:
-                asyncio.create_task(close_with_error(ws, f"{self.limits.send_queue} messages unread: the client is too slow"))
+                asyncio.create_task(close_with_error(
+                    ws, f"{self.limits.send_queue} messages unread: the client is too slow"))
 
     def _connected(self) -> int:
         # list() copies the dict in one step, so the tick thread cannot change it halfway through the count

@@ -6,8 +6,10 @@ and at the end of every tick in which its client changed it (added or removed a 
 request), before that tick's messages go out, with only the last CHECKPOINT_RECORDS of its characters' records (a
 client further behind the checkpoint gets a SYNC). A character's tokens follow from its saved state and the requests
 made since, so the store always holds a state from which the session goes on as it did, and with it the number of
-the client's last request carried out (`applied`: the client sends the later ones again, protocol.py). A client that reconnects to a server that does not know its session (Ray's proxy sent it to another replica,
-the one it was on was removed or died) gets it from the store there: the server claims it (the server that had it
+the client's last request carried out (`applied`: the client sends the later ones again, protocol.py).
+
+A client that reconnects to a server that does not know its session (Ray's proxy sent it to another replica, the one
+it was on was removed or died) gets it from the store there: the server claims it (the server that had it
 learns so at its next write and lets its copy go), runs the characters behind the client on to the token it expects
 (`catch_up`: a crowd of their own, beside the server's ticks; at most CHECKPOINT_TICKS tokens when the old server
 stopped), restores them and sends a SYNC of each, so the client's frames go on from where they were.
