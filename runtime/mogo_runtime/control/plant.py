@@ -122,11 +122,6 @@ class FootPlant:
 STATE_FLOATS = 8       # state()'s floats for two legs
 
 
-def _distance(p: list[float], q: list[float]) -> float:
-    x, y, z = q[0] - p[0], q[1] - p[1], q[2] - p[2]
-    return math.sqrt(x * x + y * y + z * z)
-
-
 def _knee(hip, knee, ankle, l1: float, l2: float) -> list[float]:
     """The knee of a leg from `hip` to `ankle` with thigh l1 and shin l2, bent the way the motion's `knee` is."""
     vx, vy, vz = ankle[0] - hip[0], ankle[1] - hip[1], ankle[2] - hip[2]
