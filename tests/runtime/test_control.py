@@ -299,6 +299,7 @@ def test_a_character_that_reached_its_goal_is_held_there(tiny_bundle):
     """A model that walks on after its walk_to goal is reached (here at 0.1 m/s, under the correction's bound) is
     pulled back to the goal by the correction, as a path holds its character: after 10 s it still stands within
     ARRIVE of the goal, where it would have drifted a metre."""
+    from mogo_runtime.control.plant import legs_of
     from mogo_runtime.control.steering import Steering
 
     gen = MotionGenerator(tiny_bundle)
@@ -314,7 +315,7 @@ def test_a_character_that_reached_its_goal_is_held_there(tiny_bundle):
         def next_pose(self):
             return np.array([0.1 * self.index / gen.dims.fps, 0.0, 0.0])
 
-    steering, model = Steering(gen.backend.control, gen.dims, Context(), None), Model()
+    steering, model = Steering(gen.backend.control, gen.dims, Context(), legs_of(gen.skeleton)), Model()
     goal = (0.05, 0.0)
     steering.request(lambda s: WalkTo(goal))
     for token in range(round(10 * gen.dims.fps / ds)):
