@@ -5,7 +5,8 @@ still says what it does? On a bundle whose model has control.
 
 Sections (each seeded; counts on the command line):
   paths      random game paths, 20 s each: smooth curves (curvature up to what the speed allows) and polylines with sharp
-             corners (45-135 degrees), speeds 0.8-3.5 m/s with a walk prompt below RUN_FROM and a run prompt from it.
+             corners (45-135 degrees), speeds 0.8-3.5 m/s, each with a walk, jog or run prompt as the data's captions
+             name the gait at that speed (`prompt_for`).
              Per frame: the root's distance to the path and the body's facing against the path's direction there;
              per path: the speed along the path (from 2 s to 2 s before its end) over the path's.
   waypoints  walk_to a goal 2-15 m away in any direction (at walk_to's default speed): reached (within ARRIVE) within
@@ -32,10 +33,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from .control_paths import (RUN_FROM, corner_frames, facing_error, path_progress, random_path, smooth_path,
+from .control_paths import (corner_frames, facing_error, path_progress, random_path, smooth_path,
                             walking_speed)
 
-WALK, RUN = "a person walks forward", "a person runs forward"
+WALK = "a person walks forward"
 PATH_SECONDS = 20.0
 ARRIVE = 0.3                 # m: the runtime's own arrival radius (mogo_runtime/control/targets.py)
 STAND_RADIUS, STAND_SPEED = 0.5, 0.3      # m, m/s: "then standing still"
@@ -56,7 +57,12 @@ def collect(stream, frames: int, before=None) -> tuple[np.ndarray, np.ndarray]:
 
 
 def prompt_for(speed: float) -> str:
-    return RUN if speed >= RUN_FROM else WALK
+    """A walk, jog or run prompt that fits a path's speed: the verb the data's captions give the gait at that speed
+    (naming the speed too, "walks forward slowly" ... "runs forward fast", made no character faster or slower:
+    benchmarks/NOTES.md, "Issue 26: the speed a character walks at")."""
+    from mogo_export.data.procedural.paths import gait_verb
+
+    return f"a person {gait_verb(speed)} forward"
 
 
 # ---------------------------------------------------------------------------------------------------- sections

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-RUN_FROM = 1.8               # m/s: the data's walks reach 1.8 m/s, its runs start there
 STEP = 0.1                   # m between the points of a smooth path
 SEARCH = (1.0, 5.0)          # m of path behind and ahead of the last progress searched for the nearest point
 

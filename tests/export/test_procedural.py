@@ -691,6 +691,21 @@ def test_path_sequences_cover_speeds_and_turning_rates():
     assert max(turning) > 60
 
 
+def test_gait_verb_is_how_the_data_names_a_steady_walk_or_run():
+    """The control benchmark prompts a path of speed v with `gait_verb(v)`: it must be the verb the data's own
+    steady, straight travel segments at v are captioned with, for walks, jogs and runs alike."""
+    seen = set()
+    for i in range(400):
+        action = PT._travel(np.random.default_rng([43, i]), "walk" if i % 2 else "run", 6.0)
+        v0, v1 = action.params["speeds"]
+        if action.params["turns"] or v0 != v1:
+            continue
+        verb = PT.gait_verb(v0)
+        assert any(p.startswith(f"{verb} forward") for p in action.phrases), (v0, verb, action.phrases)
+        seen.add(verb)
+    assert seen == {"walks", "jogs", "runs"}, seen
+
+
 def test_path_sequences_are_timelines(built):
     """timelines.py reads a path sequence as it reads a long one: whole, one segment per move."""
     info = json.loads((built / "dataset.json").read_text())

@@ -264,6 +264,12 @@ def _band(kind: str, v: float) -> tuple:
     return next(b for b in _BANDS[kind] if v < b[0])
 
 
+def gait_verb(speed: float) -> str:
+    """The verb this data's captions give a steady gait at `speed` m/s: "walks" up to the walking pace's top speed,
+    then "jogs", then "runs" (the bands above)."""
+    return _band("walk" if speed < WALK_PACE.speeds[1] else "run", speed)[1]
+
+
 def _travel(rng, kind: str, seconds: float) -> Action:
     """A walk or a run along a path: steady or changing speed, straight stretches, curves and corners."""
     pace = WALK_PACE if kind == "walk" else RUN_PACE
