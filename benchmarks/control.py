@@ -14,7 +14,9 @@ Sections (each seeded; counts on the command line):
              standing still (for the next 2 s
              within STAND_RADIUS of the goal, moving under STAND_SPEED on average over its last second).
   game_root  the game moves the capsule (a scripted loop: a random smooth path, speeds changing 0-2 m/s, strafing part of
-             the time): set_root before every frame; the motion's root against the capsule on every frame.
+             the time): set_root before every frame; the motion's root against the capsule on every frame, and the
+             model's own travel (its features' root, before the frames are put on the capsule) against the capsule's
+             over 0.5 s windows: how often it heads more than 45 degrees off, and its speed over the capsule's.
   feet       foot skating (mogo_eval.streaming's measure) over the path and game-root motions against the data's own path
              sequences; peak jerk in +-1 s around each sharp corner against the data's around its path sequences'
              segment boundaries (where direction or gait changes).
@@ -33,8 +35,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from mogo_runtime.control.vector import root_poses
+
 from .control_paths import (corner_frames, facing_error, path_progress, random_path, smooth_path,
-                            walking_speed)
+                            travel_agreement, walking_speed)
 
 WALK = "a person walks forward"
 PATH_SECONDS = 20.0
@@ -138,17 +142,25 @@ def game_root(gen, n: int, seed: int) -> dict:
     rng = np.random.default_rng([seed, 3])
     fps = gen.dims.fps
     frames = round(PATH_SECONDS * fps)
-    errors, motions = [], []
+    errors, motions, angles, ratios = [], [], [], []
     for i in tqdm(range(n), desc="game root", unit="loop"):
         capsule = scripted_capsule(rng, frames, fps)
         stream = gen.stream(WALK, seed=seed * 1000 + i)
-        joints, _ = collect(stream, frames, before=lambda f: stream.set_root(*capsule[f]))
+        joints, features = collect(stream, frames, before=lambda f: stream.set_root(*capsule[f]))
         stream.close()
         errors.append(np.hypot(*(joints[:, 0, [0, 2]] - capsule[:, :2]).T))
         motions.append((joints, []))
-    e = np.concatenate(errors)
+        # the model's own root (its features, before the frames are put on the capsule): does it move as asked?
+        angle, ratio = travel_agreement(root_poses(features)[:, :2], capsule[:, :2], fps)
+        angles.append(angle)
+        ratios.append(ratio)
+    e, angle, ratio = np.concatenate(errors), np.concatenate(angles), np.concatenate(ratios)
     return {"loops": n, "root_to_capsule_m": {"max": float(e.max()), "p99": float(np.percentile(e, 99)),
-                                              "median": float(np.median(e))}, "_motions": motions}
+                                              "median": float(np.median(e))},
+            "model_travel": {"windows": len(angle), "off_by_45deg": float((angle > math.pi / 4).mean()),
+                             "angle_median_deg": float(np.degrees(np.median(angle))),
+                             "speed_ratio_median": float(np.median(ratio))} if len(angle) else None,
+            "_motions": motions}
 
 
 def scripted_capsule(rng, frames: int, fps: float) -> np.ndarray:

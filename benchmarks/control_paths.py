@@ -94,6 +94,20 @@ def corner_frames(arc: np.ndarray, corners: list[float]) -> list[int]:
     return [int(np.searchsorted(arc, c)) for c in corners if arc[-1] > c]
 
 
+def travel_agreement(own: np.ndarray, capsule: np.ndarray, fps: float, window_s: float = 0.5,
+                     moving: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Where the model walked against where the game moved its capsule: root positions (T, 2) of the model's own
+    motion (before it is put on the capsule) and of the capsule -> over each `window_s` window in which the capsule
+    moves faster than `moving` m/s, the angle (rad, 0..pi) between the two displacements and the ratio of their
+    lengths (own / capsule)."""
+    k = max(1, round(window_s * fps))
+    a, b = own[k:] - own[:-k], capsule[k:] - capsule[:-k]
+    keep = np.hypot(*b.T) > moving * k / fps
+    a, b = a[keep], b[keep]
+    angle = np.abs(np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], (a * b).sum(1)))
+    return angle, np.hypot(*a.T) / np.hypot(*b.T)
+
+
 def walking_speed(data: Path, limit: int = 200) -> float:
     """The data's typical walking speed: the median root speed over the middle of its walk_forward clips."""
     info = json.loads((data / "dataset.json").read_text())

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.control_paths import (body_yaw, corner_frames, path_progress, polyline_path, random_path,
-                                      smooth_path)
+                                      smooth_path, travel_agreement)
 from mogo_runtime.kinematics.skeleton import HUMANML3D
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -34,6 +34,18 @@ def test_body_yaw_reads_the_facing_as_the_features_define_it():
         turned = joints.copy()
         turned[..., 0], turned[..., 2] = joints[..., 0] * c + joints[..., 2] * s, -joints[..., 0] * s + joints[..., 2] * c
         assert np.isclose(body_yaw(turned, HUMANML3D.face_joints)[0], turn)
+
+
+def test_travel_agreement_compares_the_models_own_travel_with_the_capsules():
+    t = np.arange(40) / 20.0
+    capsule = np.stack([np.zeros_like(t), 1.2 * t], 1)                      # +z at 1.2 m/s
+    angle, ratio = travel_agreement(capsule, capsule, 20.0)
+    assert len(angle) == 30 and np.allclose(angle, 0) and np.allclose(ratio, 1)
+    sideways_slow = np.stack([0.6 * t, np.zeros_like(t)], 1)                # +x at half the speed
+    angle, ratio = travel_agreement(sideways_slow, capsule, 20.0)
+    assert np.allclose(angle, math.pi / 2) and np.allclose(ratio, 0.5)
+    standing = np.zeros((40, 2))                                            # a capsule that stands is not judged
+    assert len(travel_agreement(capsule, standing, 20.0)[0]) == 0
 
 
 def test_random_paths_have_the_length_the_speed_asks_and_sharp_corners():
@@ -65,6 +77,8 @@ def test_the_benchmark_runs_on_the_tiny_bundle(tiny_bundle, tmp_path):
     assert report["paths"]["paths"] == 2 and report["paths"]["position_error_m"]["median"] >= 0
     assert 0 <= report["waypoints"]["reached"] <= 1
     assert report["game_root"]["root_to_capsule_m"]["max"] < 0.05      # the capsule places the root: by construction
+    travel = report["game_root"]["model_travel"]
+    assert travel["windows"] > 0 and 0 <= travel["off_by_45deg"] <= 1 and travel["speed_ratio_median"] >= 0
     assert report["feet"]["skating_data"] >= 0 and report["feet"]["data_path_sequences"] >= 1
     for phase in ("fresh", "steady"):
         assert report["cost"]["controlled"][phase]["per_character_token_ms"] > 0
