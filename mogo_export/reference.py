@@ -47,6 +47,12 @@ class TorchBackend:
             return None                       # the "past" is the token history itself
         return self.transformer.empty_past(rows)
 
+    def compact(self, past, first: int, count: int):
+        """As the runtime's backends (mogo_runtime.engine): slots first .. first + count - 1 to 1 .. count."""
+        if not self.kv_cache:
+            raise ValueError("an endless stream's compaction keeps cached keys and values: it needs kv_cache=True")
+        return [tuple(torch.cat([t[:, :, :1], t[:, :, first:first + count]], dim=2) for t in kv) for kv in past]
+
     @torch.no_grad()
     def step(self, text_emb: np.ndarray, tokens: np.ndarray, past, control: np.ndarray | None = None):
         emb, tok = torch.from_numpy(np.ascontiguousarray(text_emb)), torch.from_numpy(tokens)

@@ -5,12 +5,17 @@
 //   a prompt of several (plan.js) ends (END) or has run its stated length, and the next one starts;
 // - level 0 picked END: the motion ended where a clip would end; that pick is dropped (its draws stay
 //   consumed), the prompt starts again with nothing kept, and the step picks again, END forbidden;
-// - the context holds window + refresh motion tokens: the last `window` are kept.
-// So up to its first END a stream computes exactly what generateTokens computes. endless.py says why.
+// - the context holds window + refresh motion tokens for the COMPACTIONS + 1-th time: the last `window` are kept.
+// The first COMPACTIONS times it is compacted instead: the prefix and the last window - 1 cached steps stay as they
+// were computed (moved to slots 1 .. window - 1) and the newest pick is fed at slot `window`, one step row where a
+// rebuild feeds window + 1. So up to its first END a stream computes exactly what generateTokens computes. endless.py
+// says why.
 
 import { shown } from './checks.js';
 import { PCG64 } from './pcg64.js';
 import { StepPolicy } from './policy.js';
+
+export const COMPACTIONS = 3;   // compactions of a full context before it is rebuilt (endless.py)
 
 /**
  * One endless stream's token state: the step rows it is conditioned on, its random generator, its recent
@@ -21,16 +26,19 @@ export class StreamContext {
     this.policy = policy;
     this.window = spec.window;
     this.span = spec.window + spec.refresh;
+    // the tokens a context's numbers depend on, plus the newest pick (what a restored Python stream replays)
+    this.keep = this.span + COMPACTIONS * (spec.refresh + 1);
     this.rng = new PCG64(seed);
-    this.history = new Int32Array(this.span * policy.dims.numLevels);   // token t at slot t % span
+    this.history = new Int32Array(this.keep * policy.dims.numLevels);   // token t at slot t % keep
     // with control (a model that has it): the control each token was picked with, as the history holds tokens, so
     // a rebuilt context reads what it read the first time; and the control of the next token (`steer`)
     this.controlDim = controlDim;
-    this.controls = controlDim ? new Float32Array(this.span * controlDim) : null;
+    this.controls = controlDim ? new Float32Array(this.keep * controlDim) : null;
     this.control = controlDim ? new Float32Array(controlDim) : null;
     this.last = null;       // the last token picked
     this.count = 0;         // tokens picked
     this.cached = 0;        // motion tokens in the context after its prefix
+    this.compactions = 0;   // of the context since it was last fed from an empty cache
     this.motion = 0;        // tokens since the motion (re)started
     this.restarts = 0;      // motions ended by END and started again
     this.condition(emb, limits);
@@ -83,30 +91,38 @@ export class StreamContext {
   /** The control vector (controlDim) the next token is picked with (control/): a new array, never changed after. */
   steer(control) { this.control = Float32Array.from(control); }
 
+  /** [first, count]: a compaction moves cache slots first .. first + count - 1 (the last window - 1 of a full
+   * context) to slots 1 .. count; slot 0, the prefix, stays. */
+  get compaction() { return [this.span - this.window + 2, this.window - 1]; }
+
   /**
    * -> {tokens (S, L) the next step feeds, controls (S, controlDim) or null without control, fresh: whether they
-   * start a new context}. A new context is BOS and the last n picked tokens: n = 0 after a new prompt or END,
-   * `window` once the context holds window + refresh; otherwise the step feeds the last pick. Position i of the
-   * feed picks token count - n + i, so it reads that token's control (the last: `control`).
+   * start a new context, compact: whether the cache is compacted before they are fed}. A new context is BOS and the
+   * last n picked tokens: n = 0 after a new prompt or END, `window` once the context holds window + refresh tokens for
+   * the COMPACTIONS + 1-th time; otherwise the step feeds the last pick, after compacting a full context. Position i
+   * of a new context picks token count - n + i, so it reads that token's control (the last: `control`).
    */
   plan() {
-    if (!(this.restart || this.cached === this.span)) {
-      this.cached += 1;
-      return { tokens: this.last, controls: this.control, fresh: false };
+    const full = this.cached === this.span;
+    if (!(this.restart || (full && this.compactions === COMPACTIONS))) {
+      if (full) this.compactions += 1;
+      this.cached = full ? this.window : this.cached + 1;
+      return { tokens: this.last, controls: this.control, fresh: false, compact: full };
     }
     const L = this.policy.dims.numLevels, C = this.controlDim, n = this.restart ? 0 : this.window;
     const tokens = new Int32Array((n + 1) * L).fill(this.policy.dims.bosId);
     const controls = this.control && new Float32Array((n + 1) * C);
     for (let i = 0; i < n; i++) {   // the last n, oldest first
-      const slot = (this.count - n + i) % this.span;
+      const slot = (this.count - n + i) % this.keep;
       tokens.set(this.history.subarray(slot * L, (slot + 1) * L), (i + 1) * L);
       controls?.set(this.controls.subarray(slot * C, (slot + 1) * C), i * C);
     }
     controls?.set(this.control, n * C);
     this.cached = n;
+    this.compactions = 0;
     this.restart = false;
     if (n === 0) this.motion = 0;
-    return { tokens, controls, fresh: true };
+    return { tokens, controls, fresh: true, compact: false };
   }
 
   /**
@@ -125,8 +141,8 @@ export class StreamContext {
       }
       return false;
     }
-    this.history.set(picked, (this.count % this.span) * picked.length);
-    this.controls?.set(this.control, (this.count % this.span) * this.controlDim);
+    this.history.set(picked, (this.count % this.keep) * picked.length);
+    this.controls?.set(this.control, (this.count % this.keep) * this.controlDim);
     this.last = picked;
     this.count += 1;
     this.motion += 1;
@@ -230,8 +246,9 @@ export class EndlessLoop {
   async #step(b) {
     const stream = this.streams[b], rows = this.policy.rows;
     for (let attempt = 0; attempt < 2; attempt++) {   // a pick of END is picked again from the restarted context
-      const { tokens, controls, fresh } = stream.plan();
+      const { tokens, controls, fresh, compact } = stream.plan();
       if (fresh) this.past[b] = this.backend.emptyPast(rows);
+      if (compact) this.past[b] = this.backend.compact(this.past[b], ...stream.compaction);
       const out = await this.backend.step(stream.rowsEmb, this.policy.feed(tokens, 1), rows, this.past[b],
         controls && this.policy.feed(controls, 1));
       this.past[b] = out.past;

@@ -157,6 +157,15 @@ export class OrtBackend extends MotionDecoder {
     return this.rowByRow.has('step') ? Array.from({ length: rows }, () => one(1)) : one(rows);
   }
 
+  /** The cache with slots first .. first + count - 1 moved to 1 .. count (an endless stream's compaction, endless.js):
+   * new tensors, nothing after those slots (the fixed cache keeps its capacity and its length says what counts). */
+  compact(past, first, count) {
+    const move = (t, size) => moveSlots(this.ort, t, first, count, size);
+    if (this.capacity !== null) return { tensors: past.tensors.map((t) => move(t, this.capacity)), length: 1 + count };
+    if (this.rowByRow.has('step')) return past.map((row) => row.map((t) => move(t, 1 + count)));
+    return past.map((t) => move(t, 1 + count));
+  }
+
   /**
    * One step call: textEmb (rows, text_dim), tokens (rows, steps, L), past from emptyPast or the previous step,
    * control (rows, steps, control.dim) or null (see `controls`) -> {logits (rows, steps, L, K + 1), past}.
@@ -295,4 +304,17 @@ function finite(backend, graph, data) {
       + `${data.length} values); the bundle is broken (its weights or its export)`);
   }
   return data;
+}
+
+/** A cache tensor [rows, heads, P, head_dim] as a new one of `size` slots: slot 0, then slots first .. first + count
+ * - 1 at 1 .. count, then (a fixed cache) what the old one held after them. */
+function moveSlots(ort, tensor, first, count, size) {
+  const [R, H, P, D] = tensor.dims, src = tensor.data, out = new Float32Array(R * H * size * D);
+  for (let rh = 0; rh < R * H; rh++) {
+    const from = rh * P * D, to = rh * size * D;
+    if (size === P) out.set(src.subarray(from, from + P * D), to);
+    else out.set(src.subarray(from, from + D), to);
+    out.set(src.slice(from + first * D, from + (first + count) * D), to + D);
+  }
+  return new ort.Tensor('float32', out, [R, H, size, D]);
 }

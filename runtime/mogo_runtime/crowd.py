@@ -36,8 +36,8 @@ from .checks import as_int
 from .control.plant import legs_of
 from .control.steering import Steerable, Steering
 from .decoding import FrameMaker, Frames, check_chunk, decode_due
-from .endless import StreamContext
-from .engine import FixedCacheBackend
+from .endless import Feed, StreamContext
+from .engine import FixedCacheBackend, compact_slots
 from .outputs.motion import Motion
 from .policy import StepPolicy, expand_seeds
 from .text import check_texts
@@ -262,22 +262,28 @@ class Crowd:
             self._remove(c)
         return out
 
-    def _pick(self, chars: list[Character], plans: list[tuple[np.ndarray, np.ndarray | None, bool]]) -> np.ndarray:
+    def _pick(self, chars: list[Character], plans: list[Feed]) -> np.ndarray:
         """Feed every character its planned tokens and pick its next tokens (C, L).
 
-        A plan of more than one token is a rebuild from an empty context: its tokens but the last run on a scratch
-        cache (those characters only), which then replaces their rows of the crowd's cache. Every character's last
-        token goes into one call over all of them, on the crowd's own cache when every character is in it. A row's
-        numbers do not depend on the others in its call, so calls on a scratch cache go SCRATCH_ROWS rows at a
-        time."""
+        A plan of more than one token starts from an empty context (a rebuild, or a restored character's replay): its
+        tokens but the last run on a scratch cache (those characters only), which then replaces their rows of the
+        crowd's cache. Every character's last token goes into one call over all of them, on the crowd's own cache when
+        every character is in it. A row's numbers do not depend on the others in its call, so calls on a scratch cache
+        go SCRATCH_ROWS rows at a time; a compaction moves slots of its character's rows only."""
         policy = self.policy
         slots = np.array([self._slot(c) for c in chars])
         rows = (slots[:, None] * policy.rows + np.arange(policy.rows)).ravel()
-        sizes = np.array([len(tokens) for tokens, _, _ in plans])
+        sizes = np.array([len(plan.tokens) for plan in plans])
         controlled = self.backend.control is not None
 
         def control_at(members, k):      # the controls of position k of each member's feed, for its rows
-            return policy.feed(np.stack([plans[m][1][k] for m in members])) if controlled else None
+            return policy.feed(np.stack([plans[m].controls[k] for m in members])) if controlled else None
+
+        def compact(cache, members, k, first_row=0):    # the members whose feed compacts before position k
+            for i, m in enumerate(members):
+                if plans[m].compact[k]:
+                    compact_slots(cache, *chars[m].context.compaction,
+                                  slice(first_row + i * policy.rows, first_row + (i + 1) * policy.rows))
 
         per_call = max(1, SCRATCH_ROWS // policy.rows)
         # rebuilds of every length share calls, longest first: the rows still fed at position k are then a prefix
@@ -290,14 +296,19 @@ class Crowd:
             for k in range(sizes[group[0]] - 1):
                 fed = group[:sum(sizes[m] - 1 > k for m in group)]
                 n = len(fed) * policy.rows
-                self.backend.step_in_place(emb[:n], policy.feed(np.stack([plans[m][0][k] for m in fed])),
-                                           np.full(n, k, np.int64), [a[:n] for a in scratch], control_at(fed, k))
+                compact(scratch, fed, k)
+                self.backend.step_in_place(emb[:n], policy.feed(np.stack([plans[m].tokens[k] for m in fed])),
+                                           policy.feed(np.array([plans[m].slots[k] for m in fed])),
+                                           [a[:n] for a in scratch], control_at(fed, k))
             group_rows = (slots[group][:, None] * policy.rows + np.arange(policy.rows)).ravel()
             for c, fresh in zip(self.cache, scratch):
                 c[group_rows] = fresh
+        for m, plan in enumerate(plans):            # a full context compacted before its last token
+            if plan.compact[-1]:
+                compact_slots(self.cache, *chars[m].context.compaction, rows[m * policy.rows:(m + 1) * policy.rows])
         emb = np.concatenate([c.context.rows_emb for c in chars])
-        last = policy.feed(np.stack([tokens[-1] for tokens, _, _ in plans]))
-        position = policy.feed(np.array([c.context.cached for c in chars], np.int64))
+        last = policy.feed(np.stack([plan.tokens[-1] for plan in plans]))
+        position = policy.feed(np.array([plan.slots[-1] for plan in plans], np.int64))
         control = control_at(range(len(chars)), -1)
         if len(chars) == len(self.characters):      # the crowd's own cache, written in place
             logits = self.backend.step_in_place(emb, last, position, self.cache, control)

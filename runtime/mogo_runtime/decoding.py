@@ -45,6 +45,8 @@ class Backend(Protocol):
 
     def step(self, text_emb: np.ndarray, tokens: np.ndarray, past): ...
 
+    def compact(self, past, first: int, count: int): ...    # past with slots first.. moved to 1..count (endless.py)
+
     def decode(self, tokens: np.ndarray) -> np.ndarray: ...
 
     # with a decoder_step graph: its state's [reach, channels] shapes, and decode_step (engine.MotionDecoder); the

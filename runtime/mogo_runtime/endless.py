@@ -10,8 +10,15 @@ A stream's context is its prompt's prefix (BOS) plus motion tokens, rebuilt (fed
   kept, and the step picks again from the rebuilt context (END cannot be picked as a motion's first token), so an
   action is held by repeating it as the model ends it instead of running past the lengths it was trained on
   (per-segment accuracy 0.51 -> 0.78 on an earlier `base`).
-- window + refresh tokens since the last rebuild: the last `window` are kept (a motion longer than that goes on
-  from its recent past), so a step at minute 10 costs what it costs at minute 1.
+- window + refresh tokens since the last rebuild, COMPACTIONS times over: the last `window` are kept (a motion longer
+  than that goes on from its recent past), so a step at minute 10 costs what it costs at minute 1.
+In between, a context that holds window + refresh tokens is **compacted** instead: its prefix and its last window - 1
+cached steps stay in the cache as they were computed (moved to slots 1 .. window - 1) and the newest pick is fed at
+slot `window`, one step row where a rebuild feeds window + 1. Kept slots were computed attending to the steps dropped,
+as Transformer-XL's memory is; on `base` that changed neither the control benchmark nor endless single-prompt
+accuracy (0.821 / 0.822 rebuilt / compacted over 2-minute streams), and took the steady crowd's step rows from
+1.25 to 1.02 a character-token (benchmarks/NOTES.md, "Compacting the context"). After COMPACTIONS of them the next
+full context is rebuilt, so a restored stream (state.py) replays at most `keep` tokens to reach the same numbers.
 So up to its first END a stream computes exactly what `decoding.generate_tokens` computes: same tokens, same draws.
 `StreamContext` is one stream's state; the loop that feeds it is `EndlessLoop` (each stream its own step calls, on
 any backend) or a crowd (every character's step in one call, crowd.py).
@@ -19,12 +26,26 @@ any backend) or a crowd (every character's step in one call, crowd.py).
 from __future__ import annotations
 
 import threading
+from typing import NamedTuple
 
 import numpy as np
 
 from .bundle.sections import StreamingSpec
 from .clock import NO_CLOCK
 from .policy import StepPolicy
+
+COMPACTIONS = 3     # compactions of a full context before it is rebuilt (module docstring)
+
+
+class Feed(NamedTuple):
+    """What a stream's next step feeds: `tokens` (S, L) and their `controls` (S, control_dim) or None without control,
+    written at cache `slots` (S,), on an empty cache when `fresh`; `compact` (S,) says where the cache is compacted
+    (`StreamContext.compaction`) before that position is fed."""
+    tokens: np.ndarray
+    controls: np.ndarray | None
+    fresh: bool
+    slots: np.ndarray
+    compact: np.ndarray
 
 
 class StreamContext:
@@ -34,15 +55,18 @@ class StreamContext:
     def __init__(self, policy: StepPolicy, emb: np.ndarray, seed: int, spec: StreamingSpec, control_dim: int = 0,
                  limits: list[int | None] | None = None):
         self.policy, self.window, self.span = policy, spec.window, spec.window + spec.refresh
+        # the tokens a context's numbers depend on, plus the newest pick: what a restored stream replays at most
+        self.keep = self.span + COMPACTIONS * (spec.refresh + 1)
         self.rng = np.random.Generator(np.random.PCG64(seed))
-        self.history = np.zeros((self.span, policy.dims.num_levels), np.int64)   # token t at t % span
+        self.history = np.zeros((self.keep, policy.dims.num_levels), np.int64)   # token t at t % keep
         # with control (a model that has it): the control each token was picked with, as the history holds tokens,
         # so a rebuilt context reads what it read the first time; and the control of the next token (`steer`)
-        self.controls = np.zeros((self.span, control_dim), np.float32) if control_dim else None
+        self.controls = np.zeros((self.keep, control_dim), np.float32) if control_dim else None
         self.control = np.zeros(control_dim, np.float32) if control_dim else None
         self.last: np.ndarray | None = None      # the last token picked
         self.count = 0                           # tokens picked
         self.cached = 0                          # motion tokens in the context after its prefix
+        self.compactions = 0                     # of the context since it was last fed from an empty cache
         self.motion = 0                          # tokens since the motion (re)started
         self.restarts = 0                        # motions ended by END and started again
         self.resume = False                      # a restored stream (state.py): its next step feeds its context again
@@ -95,25 +119,50 @@ class StreamContext:
         """The control vector (control_dim,) the next token is picked with (mogo_runtime/control)."""
         self.control = np.asarray(control, np.float32)
 
-    def plan(self) -> tuple[np.ndarray, np.ndarray | None, bool]:
-        """-> (the tokens the next step feeds (S, L), their controls (S, control_dim) or None without control,
-        whether they start a new context). A new context is BOS and the last n picked tokens: n = 0 after a new
-        prompt or END, `window` once the context holds window + refresh; otherwise the step feeds the last pick.
-        Position i of the feed picks token count - n + i, so it reads that token's control (the last: `control`).
-        The last token fed sits in cache slot `self.cached`. A restored stream (`resume`) feeds its whole context
-        again, from an empty cache, to where the step it would have made puts it: the same slots, the same numbers."""
-        resume, self.resume = self.resume and not self.restart and self.cached < self.span, False
-        if not (resume or self.restart or self.cached == self.span):
-            self.cached += 1
-            return self.last[None], None if self.control is None else self.control[None], False
-        n = 0 if self.restart else self.cached + 1 if resume else self.window
-        ring = (self.count - n + np.arange(n)) % self.span                     # the last n, oldest first
+    @property
+    def compaction(self) -> tuple[int, int]:
+        """(first, count): a compaction moves cache slots first .. first + count - 1 (the last window - 1 of a full
+        context) to slots 1 .. count; slot 0, the prefix, stays."""
+        return self.span - self.window + 2, self.window - 1
+
+    def plan(self) -> Feed:
+        """What the next step feeds. A new context is BOS and the last n picked tokens: n = 0 after a new prompt or
+        END, `window` once the context holds window + refresh tokens for the COMPACTIONS + 1-th time; otherwise the
+        step feeds the last pick, after compacting a full context. Position i of a new context picks token
+        count - n + i, so it reads that token's control (the last: `control`). The last token fed sits in cache slot
+        `self.cached`. A restored stream (`resume`) replays the tokens its context's numbers came from, from an empty
+        cache and compacting where it did, to where the step it would have made puts it: the same slots, the same
+        numbers."""
+        resume, self.resume = self.resume and not self.restart, False
+        rebuild = self.restart or (self.cached == self.span and self.compactions == COMPACTIONS)
+        if not (resume or rebuild):
+            slot, compact = self._advance()
+            return Feed(self.last[None], None if self.control is None else self.control[None], False,
+                        np.array([slot]), np.array([compact]))
+        if rebuild:
+            n = 0 if self.restart else self.window
+            self.cached, self.compactions, self.restart = n, 0, False
+            if n == 0:
+                self.motion = 0
+            slots, compact = np.arange(n + 1), np.zeros(n + 1, bool)
+        else:       # replay: every token since the context was last new, then the last pick
+            n = self.cached + self.compactions * (self.span - self.window + 1) + 1
+            self.cached, self.compactions = 0, 0
+            slots, compact = np.zeros(n + 1, np.int64), np.zeros(n + 1, bool)
+            for i in range(1, n + 1):
+                slots[i], compact[i] = self._advance()
+        ring = (self.count - n + np.arange(n)) % self.keep                     # the last n, oldest first
         bos = np.full((1, self.history.shape[1]), self.policy.dims.bos_id, np.int64)
-        self.cached, self.restart = n, False
-        if n == 0:
-            self.motion = 0
         controls = None if self.control is None else np.concatenate([self.controls[ring], self.control[None]])
-        return np.concatenate([bos, self.history[ring]]), controls, True
+        return Feed(np.concatenate([bos, self.history[ring]]), controls, True, slots, compact)
+
+    def _advance(self) -> tuple[int, bool]:
+        """One more token fed to the context -> (its slot, whether the context is compacted first)."""
+        if self.cached == self.span:
+            self.cached, self.compactions = self.window, self.compactions + 1
+            return self.cached, True
+        self.cached += 1
+        return self.cached, False
 
     def accept(self, picked: np.ndarray) -> bool:
         """The step's pick (L,) -> whether it is the stream's next token. END (level 0) is not: the motion ended, the
@@ -127,9 +176,9 @@ class StreamContext:
                 if self.part + 1 == len(self.parts) and self.finished_at is None and self.limits[self.part] is None:
                     self.finished_at = self.count
             return False
-        self.history[self.count % self.span] = self.last = picked
+        self.history[self.count % self.keep] = self.last = picked
         if self.controls is not None:
-            self.controls[self.count % self.span] = self.control
+            self.controls[self.count % self.keep] = self.control
         self.count += 1
         self.motion += 1
         self.in_part += 1
@@ -188,12 +237,18 @@ class EndlessLoop:
 
     def _step(self, b: int, stream: StreamContext) -> np.ndarray:
         for _ in range(2):             # a pick of END is picked again from the restarted context, END forbidden
-            tokens, controls, fresh = stream.plan()
-            if fresh:
+            feed = stream.plan()
+            if feed.fresh:
                 self.past[b] = self.backend.empty_past(self.policy.rows)
-            with self.clock("step"):
-                logits, self.past[b] = self.backend.step(stream.rows_emb, self.policy.feed(tokens[None]), self.past[b],
-                                                         None if controls is None else self.policy.feed(controls[None]))
+            # fed in one call, but for compactions (a replayed context has some inside it)
+            cuts = [0] + [i for i in np.flatnonzero(feed.compact).tolist() if i] + [len(feed.tokens)]
+            for a, z in zip(cuts, cuts[1:]):
+                if feed.compact[a]:
+                    self.past[b] = self.backend.compact(self.past[b], *stream.compaction)
+                controls = None if feed.controls is None else self.policy.feed(feed.controls[None, a:z])
+                with self.clock("step"):
+                    logits, self.past[b] = self.backend.step(stream.rows_emb, self.policy.feed(feed.tokens[None, a:z]),
+                                                             self.past[b], controls)
             with self.clock("sample"):
                 picked = self.policy.pick(logits[:, -1], np.array([stream.may_end]), [stream.rng])[0]
             if stream.accept(picked):

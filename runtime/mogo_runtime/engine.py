@@ -182,6 +182,13 @@ class OrtBackend(MotionDecoder):
                           np.float32)] * len(self.past_names)
         return [empty] * rows if "step" in self.one_row else empty
 
+    def compact(self, past: list, first: int, count: int) -> list:
+        """The cache with slots first .. first + count - 1 moved to 1 .. count and nothing after them (an endless
+        stream's compaction, endless.StreamContext.compaction)."""
+        def kept(arrays):
+            return [np.concatenate([p[:, :, :1], p[:, :, first:first + count]], axis=2) for p in arrays]
+        return [kept(row) for row in past] if "step" in self.one_row else kept(past)
+
     def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: list, control: np.ndarray | None = None):
         """-> (logits (B, S, L, K + 1), the next past). `control` (B, S, control.dim): see `controls`."""
         control = self.controls(tokens, control)
@@ -223,6 +230,12 @@ class OrtBackend(MotionDecoder):
                               f"{(rows, steps, d.num_levels, d.codebook_size + 1)} and {cache}")
         return self._finite("step", out[0]), out[1:]                            # logits (B, S, L, K + 1), presents
 
+def compact_slots(arrays: list[np.ndarray], first: int, count: int, rows=slice(None)) -> None:
+    """In place: cache slots first .. first + count - 1 of `rows` to slots 1 .. count (a compaction)."""
+    for a in arrays:
+        a[rows, :, 1:1 + count] = a[rows, :, first:first + count]
+
+
 @dataclass(frozen=True)
 class FixedCache:
     """The portable step's cache: per layer key and value [rows, L * n_heads, capacity, head_dim], written in place
@@ -252,6 +265,10 @@ class FixedCacheBackend(OrtBackend):
 
     def empty_past(self, rows: int) -> FixedCache:
         return FixedCache([np.zeros((rows,) + self.cache_shape, np.float32) for _ in self.past_names], 0)
+
+    def compact(self, past: FixedCache, first: int, count: int) -> FixedCache:
+        compact_slots(past.arrays, first, count)
+        return FixedCache(past.arrays, 1 + count)
 
     def step(self, text_emb: np.ndarray, tokens: np.ndarray, past: FixedCache, control: np.ndarray | None = None):
         """-> (logits (B, S, L, K + 1), the past one step on). `past`'s arrays are written in place."""

@@ -6,10 +6,11 @@ without a visible jump.
                                               # controls, decode window, root, foot lock, steering
     character = restore_character(crowd, data)
 
-The step cache is not saved: the tokens of the character's context are, and the restored character's first step
-feeds them again from an empty cache (endless.StreamContext.resume). A crowd's rows are computed independently of
-one another and a context's slots do not depend on how they were fed, so the cache it rebuilds holds the same numbers
-(tests/runtime/test_state.py: bit for bit against a character that never stopped). The text embeddings are saved,
+The step cache is not saved: the tokens its numbers came from are (those since the context was last fed from an
+empty cache, at most `StreamContext.keep`), and the restored character's first step feeds them again from an empty
+cache, compacting where the stream did (endless.StreamContext.resume). A crowd's rows are computed independently of
+one another, one token a call, so the cache it replays holds the same numbers (tests/runtime/test_state.py: bit for
+bit against a character that never stopped). The text embeddings are saved,
 not the prompt encoded again: the restored character is conditioned on the same numbers.
 
 Saved data is read as untrusted: every field checked for its type, shape and range, else ValueError naming it.
@@ -27,6 +28,7 @@ from .control.targets import FollowPath, GameRoot, Steer, WalkTo
 from .control.plant import STATE_FLOATS
 from .control.warp import Ease
 from .decoding import MAX_CHUNK
+from .endless import COMPACTIONS
 from .generator import Conditioning
 from .text import check_texts
 
@@ -68,7 +70,8 @@ def save_character(c: "Character") -> bytes:
             "controls": None if ctx.controls is None else _array(ctx.controls),
             "control": None if ctx.control is None else _array(ctx.control),
             "last": None if ctx.last is None else _array(ctx.last),
-            "count": ctx.count, "cached": ctx.cached, "motion": ctx.motion, "restarts": ctx.restarts,
+            "count": ctx.count, "cached": ctx.cached, "compactions": ctx.compactions, "motion": ctx.motion,
+            "restarts": ctx.restarts,
             "parts": _array(np.stack(ctx.parts)), "limits": ctx.limits, "part": ctx.part,
             "finished_at": ctx.finished_at, "starts": ctx.starts, "restart": ctx.restart, "in_part": ctx.in_part},
         "frames": {
@@ -230,15 +233,28 @@ def _restore_into(character, top: _Fields, c: _Fields, dims, span: int, L: int, 
         ctx.rng.bit_generator.state = rng
     except (TypeError, ValueError, KeyError):
         c.fail("rng", "a PCG64 state")
-    ctx.history = c.array("history", "<i8", (span, L))
-    if control_dim:
-        ctx.controls = c.array("controls", "<f4", (span, control_dim))
-        ctx.control = c.array("control", "<f4", (control_dim,))
     ctx.count = c.int("count")
-    ctx.last = c.array("last", "<i8", (L,), none=ctx.count == 0)
-    if ((ctx.history < 0) | (ctx.history >= dims.codebook_size)).any():
+    # states saved before contexts were compacted: a ring of the last `span` tokens, and never a compaction
+    compacted = "compactions" in c.data
+    ring = ctx.keep if compacted else span
+    history = c.array("history", "<i8", (ring, L))
+    if ((history < 0) | (history >= dims.codebook_size)).any():
         c.fail("history", f"codes in [0, {dims.codebook_size})")
+    held = ctx.count - ring + np.arange(ring)            # the tokens the ring holds (those >= 0), token t at t % ring
+    held = held[held >= 0]
+    ctx.history[held % ctx.keep] = history[held % ring]
+    if control_dim:
+        controls = c.array("controls", "<f4", (ring, control_dim))
+        ctx.controls[held % ctx.keep] = controls[held % ring]
+        ctx.control = c.array("control", "<f4", (control_dim,))
+    ctx.last = c.array("last", "<i8", (L,), none=ctx.count == 0)
     ctx.cached, ctx.motion, ctx.restarts = c.int("cached", 0, span), c.int("motion"), c.int("restarts")
+    # an old state's full context was rebuilt from its ring, as its stream would have: it holds no more to replay
+    ctx.compactions = c.int("compactions", 0, COMPACTIONS) if compacted else COMPACTIONS * (ctx.cached == span)
+    replayed = not (ctx.cached == span and ctx.compactions == COMPACTIONS)    # else its next step rebuilds
+    if replayed and ctx.cached + ctx.compactions * (span - ctx.window + 1) > max(ctx.count - 1, 0):
+        c.fail("cached", f"context tokens before the last of the {ctx.count} picked, with {ctx.compactions} "
+                         f"compactions of {span - ctx.window + 1} tokens each")
     ctx.part, ctx.in_part = c.int("part", 0, len(ctx.parts) - 1), c.int("in_part")
     ctx.finished_at = c.int("finished_at", none=True)
     starts = c._get("starts")

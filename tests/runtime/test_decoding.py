@@ -43,6 +43,9 @@ class ToyBackend:
             logits[np.asarray(self.end_at)[:R] == past, :, 0, DIMS.end_id] = 1e3
         return logits, past + S
 
+    def compact(self, past, first, count):
+        return np.full_like(past, 1 + count)
+
     def decode(self, tokens):
         # latent of a token = sum of its level codes; a frame = sum of its token's latent and the 2 before.
         lat = sum(self.codes[l][tokens[..., l]] for l in range(DIMS.num_levels))   # (B, T, D)

@@ -1,8 +1,8 @@
 """Endless, steerable streams: no end, a new prompt from the next token, a bounded context, timelines.
 
 The toy bundle (tests/runtime/toy_bundle.py) declares window 5 + refresh 3, so a few dozen tokens already go
-through many context rebuilds; its step graph sums every cached key, so a rebuild that kept the wrong tokens, or
-none, changes the logits.
+through many context compactions and rebuilds; its step graph sums every cached key, so a rebuild or a compaction that
+kept the wrong tokens, or none, changes the logits.
 """
 import itertools
 import shutil
@@ -14,7 +14,7 @@ from toy_bundle import REFRESH, WINDOW, build_toy_bundle, toy_bundle  # noqa: F4
 from mogo_runtime import MotionGenerator, SamplingConfig
 from mogo_runtime.bundle.sections import StreamingSpec
 from mogo_runtime.decoding import GenerationTask, generate_tokens
-from mogo_runtime.endless import EndlessLoop
+from mogo_runtime.endless import COMPACTIONS, EndlessLoop
 from mogo_runtime.engine import OrtBackend
 from mogo_runtime.policy import expand_seeds, make_rngs
 
@@ -67,22 +67,40 @@ def rebuilt(call, dims) -> bool:
     return past == 0 and (tokens[:, 0] == dims.bos_id).all()
 
 
-def test_the_context_is_rebuilt_and_stays_bounded(toy_bundle):  # noqa: F811
+def test_a_full_context_is_compacted_then_rebuilt_and_stays_bounded(toy_bundle):  # noqa: F811
     backend = Recorded(OrtBackend(MotionGenerator(toy_bundle).bundle), {"all": -1e9})    # a model that never ends
+    caches = []                                 # the cache each step call was given, and the one it returned
+    step = backend.step
+
+    def kept(emb, tokens, past, control=None):
+        logits, present = step(emb, tokens, past, control)
+        caches.append((past, present))
+        return logits, present
+    backend.step = kept
     loop = EndlessLoop(backend, backend.encode_text([WALK]), SamplingConfig(), [0], SPEC)
     for _ in range(200):
         loop.step()
     lengths = [past + tokens.shape[1] for tokens, past in backend.calls]
     # the cache holds the prompt prefix and at most window + refresh tokens, every step of a long stream
     assert max(lengths) == 1 + WINDOW + REFRESH and lengths[:3] == [1, 2, 3] and len(lengths) == 200
-    rebuilds = [i for i, (a, b) in enumerate(zip(lengths, lengths[1:])) if b < a]
-    assert len(rebuilds) >= (200 - WINDOW - REFRESH - 1) // (REFRESH + 1) and all(lengths[i + 1] == 1 + WINDOW for i in rebuilds)
-    # a rebuild feeds [BOS, the last `window` tokens picked], oldest first
+    full = [i for i, (a, b) in enumerate(zip(lengths, lengths[1:])) if b < a]
+    assert len(full) >= (200 - WINDOW - REFRESH - 1) // (REFRESH + 1) and all(lengths[i + 1] == 1 + WINDOW for i in full)
+    # COMPACTIONS times the newest pick is fed after the prefix and the last window - 1 cached steps, as they were
+    # computed; then the context is rebuilt from [BOS, the last `window` tokens picked], oldest first
+    rebuilt = [backend.calls[i + 1][1] == 0 for i in full]
+    assert rebuilt == ([False] * COMPACTIONS + [True]) * (len(full) // (COMPACTIONS + 1)) + [False] * (len(full) % (COMPACTIONS + 1))
     picked = np.stack([tokens[0, -1] for tokens, _ in backend.calls[1:]])          # token t is fed at call t + 1
-    for i in rebuilds:
+    first = WINDOW + REFRESH - WINDOW + 2
+    for i, fresh in zip(full, rebuilt):
         tokens, past = backend.calls[i + 1]
-        assert past == 0 and (tokens[0, 0] == backend.dims.bos_id).all()
-        assert np.array_equal(tokens[0, 1:], picked[i - WINDOW + 1:i + 1])
+        if fresh:
+            assert (tokens[0, 0] == backend.dims.bos_id).all()
+            assert np.array_equal(tokens[0, 1:], picked[i - WINDOW + 1:i + 1])
+            continue
+        assert past == WINDOW and np.array_equal(tokens[0], picked[i:i + 1])
+        given, before = caches[i + 1][0], caches[i][1]
+        for a, b in zip(given, before):
+            assert np.array_equal(a[:, :, :1], b[:, :, :1]) and np.array_equal(a[:, :, 1:], b[:, :, first:first + WINDOW - 1])
 
 
 def test_the_loop_equals_generate_tokens_until_its_first_end_or_refresh(gen):
