@@ -8,8 +8,8 @@
 // - the context holds window + refresh motion tokens for the COMPACTIONS + 1-th time: the last `window` are kept.
 // The first COMPACTIONS times it is compacted instead: the prefix and the last window - 1 cached steps stay as they
 // were computed (moved to slots 1 .. window - 1) and the newest pick is fed at slot `window`, one step row where a
-// rebuild feeds window + 1. So up to its first END a stream computes exactly what generateTokens computes. endless.py
-// says why.
+// rebuild feeds window + 1. So up to its first END or compaction a stream computes exactly what generateTokens
+// computes. endless.py says why.
 
 import { shown } from './checks.js';
 import { PCG64 } from './pcg64.js';

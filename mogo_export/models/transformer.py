@@ -59,8 +59,8 @@ class RelativeSelfAttention(nn.Module):
 
     score(i, j) = (q_i + u) . k_j + (q_i + v) . phi[min(i - j, max_rel_dist)], scaled by 1/sqrt(head_dim).
     Query i of a call sits at step P + i where P = past length; key j at step j. Nothing else carries
-    position, so the same weights serve any context; endless streams rebuild theirs (prefix + recent steps)
-    rather than dropping old keys, whose successors' keys were computed attending to them (docs/bundle.md).
+    position, so the same weights serve any context; endless streams bound theirs by compacting it (prefix + recent
+    steps kept as computed, measured before it was made the loop) and now and then rebuilding it (docs/bundle.md).
     """
 
     def __init__(self, cfg: TransformerConfig):

@@ -10,16 +10,18 @@ A stream's context is its prompt's prefix (BOS) plus motion tokens, rebuilt (fed
   kept, and the step picks again from the rebuilt context (END cannot be picked as a motion's first token), so an
   action is held by repeating it as the model ends it instead of running past the lengths it was trained on
   (per-segment accuracy 0.51 -> 0.78 on an earlier `base`).
-- window + refresh tokens since the last rebuild, COMPACTIONS times over: the last `window` are kept (a motion longer
-  than that goes on from its recent past), so a step at minute 10 costs what it costs at minute 1.
-In between, a context that holds window + refresh tokens is **compacted** instead: its prefix and its last window - 1
+- a full context (window + refresh motion tokens) already compacted COMPACTIONS times since it was last rebuilt: the
+  last `window` are kept (a motion longer than that goes on from its recent past), so a step at minute 10 costs
+  what it costs at minute 1.
+Before that, a full context is **compacted** instead: its prefix and its last window - 1
 cached steps stay in the cache as they were computed (moved to slots 1 .. window - 1) and the newest pick is fed at
 slot `window`, one step row where a rebuild feeds window + 1. Kept slots were computed attending to the steps dropped,
 as Transformer-XL's memory is; on `base` that changed neither the control benchmark nor endless single-prompt
-accuracy (0.821 / 0.822 rebuilt / compacted over 2-minute streams), and took the steady crowd's step rows from
-1.25 to 1.02 a character-token (benchmarks/NOTES.md, "Compacting the context"). After COMPACTIONS of them the next
+accuracy (0.8209 / 0.8203 rebuilt / compacted over 2-minute streams), and took a steady crowd's step rows from
+1.25 to 1.03 a character-token (benchmarks/NOTES.md, "compacting the context"). After COMPACTIONS of them the next
 full context is rebuilt, so a restored stream (state.py) replays at most `keep` tokens to reach the same numbers.
-So up to its first END a stream computes exactly what `decoding.generate_tokens` computes: same tokens, same draws.
+So up to its first END or compaction a stream computes exactly what `decoding.generate_tokens` computes: same tokens,
+same draws.
 `StreamContext` is one stream's state; the loop that feeds it is `EndlessLoop` (each stream its own step calls, on
 any backend) or a crowd (every character's step in one call, crowd.py).
 """
