@@ -155,6 +155,9 @@ def _edit(data: bytes, path: str, value) -> bytes:
     ("context.rng", {"bit_generator": "MT19937"}, "context.rng must be"),
     ("context.limits", [0], "context.limits must be"),
     ("context.part", 5, "context.part must be"),
+    ("context.compactions", 4, "context.compactions must be"),
+    # a context whose numbers would come from more tokens than the character has picked
+    ("context.compactions", 2, "context.cached must be context tokens before the last"),
     ("frames.angle", float("nan"), "frames.angle must be"),
     ("frames.position", [1.0], "frames.position must be"),
     ("frames.pending", 99, "frames.pending must be"),
