@@ -314,7 +314,7 @@ function moveSlots(ort, tensor, first, count, size) {
     const from = rh * P * D, to = rh * size * D;
     if (size === P) out.set(src.subarray(from, from + P * D), to);
     else out.set(src.subarray(from, from + D), to);
-    out.set(src.slice(from + first * D, from + (first + count) * D), to + D);
+    out.set(src.subarray(from + first * D, from + (first + count) * D), to + D);
   }
   return new ort.Tensor('float32', out, [R, H, size, D]);
 }

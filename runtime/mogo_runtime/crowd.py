@@ -279,11 +279,10 @@ class Crowd:
         def control_at(members, k):      # the controls of position k of each member's feed, for its rows
             return policy.feed(np.stack([plans[m].controls[k] for m in members])) if controlled else None
 
-        def compact(cache, members, k, first_row=0):    # the members whose feed compacts before position k
+        def compact(scratch, members, k):     # the members whose feed compacts before position k, in their rows
             for i, m in enumerate(members):
                 if plans[m].compact[k]:
-                    compact_slots(cache, *chars[m].context.compaction,
-                                  slice(first_row + i * policy.rows, first_row + (i + 1) * policy.rows))
+                    compact_slots(scratch, *chars[m].context.compaction, slice(i * policy.rows, (i + 1) * policy.rows))
 
         per_call = max(1, SCRATCH_ROWS // policy.rows)
         # rebuilds of every length share calls, longest first: the rows still fed at position k are then a prefix

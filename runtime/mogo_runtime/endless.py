@@ -13,9 +13,9 @@ A stream's context is its prompt's prefix (BOS) plus motion tokens, rebuilt (fed
 - a full context (window + refresh motion tokens) already compacted COMPACTIONS times since it was last rebuilt: the
   last `window` are kept (a motion longer than that goes on from its recent past), so a step at minute 10 costs
   what it costs at minute 1.
-Before that, a full context is **compacted** instead: its prefix and its last window - 1
-cached steps stay in the cache as they were computed (moved to slots 1 .. window - 1) and the newest pick is fed at
-slot `window`, one step row where a rebuild feeds window + 1. Kept slots were computed attending to the steps dropped,
+Before that, a full context is **compacted** instead: its prefix and its last window - 1 cached steps stay in the
+cache as they were computed (moved to slots 1 .. window - 1) and the newest pick is fed at slot `window`, one step
+row where a rebuild feeds window + 1. Kept slots were computed attending to the steps dropped,
 as Transformer-XL's memory is; on `base` that changed neither the control benchmark nor endless single-prompt
 accuracy (0.8209 / 0.8203 rebuilt / compacted over 2-minute streams), and took a steady crowd's step rows from
 1.25 to 1.03 a character-token (benchmarks/NOTES.md, "compacting the context"). After COMPACTIONS of them the next

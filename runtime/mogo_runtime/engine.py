@@ -230,6 +230,7 @@ class OrtBackend(MotionDecoder):
                               f"{(rows, steps, d.num_levels, d.codebook_size + 1)} and {cache}")
         return self._finite("step", out[0]), out[1:]                            # logits (B, S, L, K + 1), presents
 
+
 def compact_slots(arrays: list[np.ndarray], first: int, count: int, rows=slice(None)) -> None:
     """In place: cache slots first .. first + count - 1 of `rows` to slots 1 .. count (a compaction)."""
     for a in arrays:

@@ -10,8 +10,8 @@ The step cache is not saved: the tokens its numbers came from are (those since t
 empty cache, at most `StreamContext.keep`), and the restored character's first step feeds them again from an empty
 cache, compacting where the stream did (endless.StreamContext.resume). A crowd's rows are computed independently of
 one another, one token a call, so the cache it replays holds the same numbers (tests/runtime/test_state.py: bit for
-bit against a character that never stopped). The text embeddings are saved,
-not the prompt encoded again: the restored character is conditioned on the same numbers.
+bit against a character that never stopped). The text embeddings are saved, not the prompt encoded again: the
+restored character is conditioned on the same numbers.
 
 Saved data is read as untrusted: every field checked for its type, shape and range, else ValueError naming it.
 """
