@@ -239,18 +239,15 @@ class EndlessLoop:
 
     def _step(self, b: int, stream: StreamContext) -> np.ndarray:
         for _ in range(2):             # a pick of END is picked again from the restarted context, END forbidden
-            feed = stream.plan()
+            feed = stream.plan()        # a loop's streams are never restored: a compaction comes only before one token
             if feed.fresh:
                 self.past[b] = self.backend.empty_past(self.policy.rows)
-            # fed in one call, but for compactions (a replayed context has some inside it)
-            cuts = [0] + [i for i in np.flatnonzero(feed.compact).tolist() if i] + [len(feed.tokens)]
-            for a, z in zip(cuts, cuts[1:]):
-                if feed.compact[a]:
-                    self.past[b] = self.backend.compact(self.past[b], *stream.compaction)
-                controls = None if feed.controls is None else self.policy.feed(feed.controls[None, a:z])
-                with self.clock("step"):
-                    logits, self.past[b] = self.backend.step(stream.rows_emb, self.policy.feed(feed.tokens[None, a:z]),
-                                                             self.past[b], controls)
+            elif feed.compact[0]:
+                self.past[b] = self.backend.compact(self.past[b], *stream.compaction)
+            controls = None if feed.controls is None else self.policy.feed(feed.controls[None])
+            with self.clock("step"):
+                logits, self.past[b] = self.backend.step(stream.rows_emb, self.policy.feed(feed.tokens[None]),
+                                                         self.past[b], controls)
             with self.clock("sample"):
                 picked = self.policy.pick(logits[:, -1], np.array([stream.may_end]), [stream.rng])[0]
             if stream.accept(picked):

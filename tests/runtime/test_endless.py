@@ -90,7 +90,7 @@ def test_a_full_context_is_compacted_then_rebuilt_and_stays_bounded(toy_bundle):
     rebuilt = [backend.calls[i + 1][1] == 0 for i in full]
     assert rebuilt == ([False] * COMPACTIONS + [True]) * (len(full) // (COMPACTIONS + 1)) + [False] * (len(full) % (COMPACTIONS + 1))
     picked = np.stack([tokens[0, -1] for tokens, _ in backend.calls[1:]])          # token t is fed at call t + 1
-    first = WINDOW + REFRESH - WINDOW + 2
+    first = REFRESH + 2                         # the slot of the last window - 1 steps of a full context
     for i, fresh in zip(full, rebuilt):
         tokens, past = backend.calls[i + 1]
         if fresh:
