@@ -350,12 +350,16 @@ class Crowd:
         out = {}
         for n, chars in groups.items():
             features = decode_due(self.backend, [c.frames for c in chars], n)
-            for c, frames in zip(chars, FrameMaker.frames_many([c.frames for c in chars], features)):
-                out[c] = frames
-                if c.steering is not None:
-                    c.steering.update(out[c].index + len(out[c].joints), c.frames.joints)
-                    out[c].joints = c.steering.place(out[c].index, out[c].joints)
-                if c.recorded is not None:
-                    c.recorded[1].append(out[c].features)
-                    c.recorded[2].append(out[c].joints)
+            out.update(zip(chars, FrameMaker.frames_many([c.frames for c in chars], features)))
+        steered = [c for c in out if c.steering is not None]
+        Steering.update_many([c.steering for c in steered], [out[c].index + len(out[c].joints) for c in steered],
+                             [c.frames.joints for c in steered])
+        placed = Steering.place_many([c.steering for c in steered], [out[c].index for c in steered],
+                                     [out[c].joints for c in steered])
+        for c, joints in zip(steered, placed):
+            out[c].joints = joints
+        for c, frames in out.items():
+            if c.recorded is not None:
+                c.recorded[1].append(frames.features)
+                c.recorded[2].append(frames.joints)
         return out

@@ -98,3 +98,27 @@ def test_chunks_give_the_same_joints_and_the_state_restores():
             plant.load(*saved)
         parts.append(plant.apply(moved[a:b], True))
     np.testing.assert_array_equal(np.concatenate(parts), whole)
+
+
+def test_a_stream_s_feet_are_the_same_alone_and_in_a_crowd():
+    """apply_many (a crowd's streams at once, each leg a lane of numpy arithmetic) gives each stream the bits that
+    apply gives it alone (Python floats, as the JavaScript runtime computes), whatever its neighbours: planted,
+    lifted, out of reach and unmoved frames, chunk by chunk."""
+    rng = np.random.default_rng(4)
+    streams, frames = 6, 40
+    joints = np.stack([standing(frames, rng) for _ in range(streams)])
+    drift = rng.normal(0, 1, (streams, 1, 1, 1)) * 0.03          # up to ~8 cm a frame: some feet out of reach
+    joints[..., [0, 2]] += (drift * np.arange(frames)[None, :, None, None]).astype(np.float32)
+    lifted = rng.random((streams, frames)) < 0.25
+    joints[..., list(LEGS[0][2:]), 1] += np.where(lifted, 0.08, 0.0)[..., None].astype(np.float32)
+    moved = rng.random((streams, frames)) < 0.8
+    moved[0] = False                                             # a stream never steered beside steered ones
+    alone, together = [FootPlant(LEGS) for _ in range(streams)], [FootPlant(LEGS) for _ in range(streams)]
+    a = 0
+    for b in (1, 4, 5, 13, 20, 40):
+        want = np.stack([p.apply(joints[s, a:b], moved[s, a:b].tolist()) for s, p in enumerate(alone)])
+        got = FootPlant.apply_many(together, joints[:, a:b], moved[:, a:b])
+        np.testing.assert_array_equal(got, want)
+        assert [p.state() for p in together] == [p.state() for p in alone]
+        a = b
+    assert any(p.pins[0] for p in alone) and not np.array_equal(want, joints[:, a - 20:a])   # it planted feet

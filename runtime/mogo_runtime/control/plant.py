@@ -14,9 +14,11 @@ ankle, toe: `legs_of`):
 - the knee is placed by two-bone IK: in the plane of hip, new ankle and the motion's own knee, thigh and shin keeping
   this frame's lengths.
 
-Causal, its state the pins and offsets: a stream decoded in chunks of any size gets the same joints. Scalar float64
+Causal, its state the pins and offsets: a stream decoded in chunks of any size gets the same joints. float64
 arithmetic on the float32 joints, then float32 again, and only + - * / sqrt (each correctly rounded): the same bits in
-every runtime (js/src/control/plant.js). What it buys is measured in benchmarks/control.py ("feet").
+every runtime (js/src/control/plant.js), whether a leg is computed alone on Python floats (`apply`: a lone stream's
+frame) or as a lane of numpy arrays (`apply_many`: a crowd's legs at once). What it buys is measured in
+benchmarks/control.py ("feet").
 """
 from __future__ import annotations
 
@@ -46,6 +48,8 @@ def legs_of(skeleton) -> tuple[tuple[int, ...], ...]:
 
 class FootPlant:
     def __init__(self, legs: tuple[tuple[int, ...], ...]):
+        if len({len(leg) for leg in legs}) != 1:
+            raise ValueError(f"legs of one length are planted together, got {legs}")
         self.legs = legs
         # the legs' joints, and each leg as positions among them: only those rows are read and written
         self._joints = sorted({j for leg in legs for j in leg})
@@ -65,44 +69,55 @@ class FootPlant:
         frames = out[:, self._joints].tolist()      # float64 values of the float32 joints
         for rows, m in zip(frames, moved):
             for i, leg in enumerate(self._legs):
-                self._leg(i, leg, rows, m)
+                pin = self.pins[i]
+                dx, dz, shifted, knee, down, pin, offset = _plant(_FLOATS, rows[leg[0]], rows[leg[1]], rows[leg[2]],
+                                                                  rows[leg[-1]], m, pin is not None, pin or (0.0, 0.0),
+                                                                  self.offsets[i])
+                self.pins[i], self.offsets[i] = pin if down else None, offset
+                if shifted:
+                    for j in leg[2:]:           # the foot, ankle to toe
+                        rows[j][0] += dx
+                        rows[j][2] += dz
+                    rows[leg[1]] = list(knee)
         out[:, self._joints] = frames               # float32 again
         return out
 
-    def _leg(self, i: int, leg: tuple[int, ...], rows: list[list[float]], moved: bool) -> None:
-        hip, knee, ankle, toe = rows[leg[0]], rows[leg[1]], rows[leg[2]], rows[leg[-1]]
-        pin = self.pins[i]
-        if moved and toe[1] < PLANT_HEIGHT:
-            if pin is None:               # touched down: where it shows now, with the offset it has
-                pin = (toe[0] + self.offsets[i][0], toe[2] + self.offsets[i][1])
-            dx, dz = pin[0] - toe[0], pin[1] - toe[2]
-        else:
-            pin = None
-            dx, dz = self.offsets[i][0] * RELEASE, self.offsets[i][1] * RELEASE
-        hx, hy, hz = hip
-        kx, ky, kz = knee
-        ax, ay, az = ankle
-        l1 = math.sqrt((kx - hx) * (kx - hx) + (ky - hy) * (ky - hy) + (kz - hz) * (kz - hz))
-        l2 = math.sqrt((ax - kx) * (ax - kx) + (ay - ky) * (ay - ky) + (az - kz) * (az - kz))
-        reach = REACH * (l1 + l2)
-        bx, by, bz = ax - hx, ay - hy, az - hz
-        ex, ez = bx + dx, bz + dz
-        if ex * ex + by * by + ez * ez > reach * reach:
-            # shorten the offset along itself: |b + s d| = reach, 0 <= s < 1 (s = 0 where the motion itself is
-            # out of reach: its own foot, unplanted)
-            a = dx * dx + dz * dz
-            b = 2.0 * (bx * dx + bz * dz)
-            c = bx * bx + by * by + bz * bz - reach * reach
-            s = 0.0 if c >= 0.0 else (-b + math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
-            dx, dz = dx * s, dz * s
-            if pin is not None:
-                pin = (toe[0] + dx, toe[2] + dz)
-        self.pins[i], self.offsets[i] = pin, (dx, dz)
-        if dx == 0.0 and dz == 0.0:
-            return
-        for j in leg[2:]:                 # the foot, ankle to toe
-            rows[j][0], rows[j][2] = rows[j][0] + dx, rows[j][2] + dz
-        knee[:] = _knee(hip, knee, ankle, l1, l2)
+    @staticmethod
+    def apply_many(plants: list["FootPlant"], joints: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """`apply` for many streams at once (a crowd's), the same numbers: joints (B, n, J, 3) float32, stream b's
+        next n frames, `moved` (B, n) bool -> the same with planted feet. Each leg of each stream is a lane of
+        numpy's elementwise float64 arithmetic, the frames in order: a lane's numbers do not depend on the others'."""
+        B, n = joints.shape[:2]
+        legs = plants[0].legs
+        if any(p.legs != legs for p in plants):
+            raise ValueError("apply_many plants the feet of streams of one skeleton")
+        L, K = len(legs), len(legs[0])
+        # lane b * L + i: leg i of stream b
+        pinned = np.array([pin is not None for p in plants for pin in p.pins])
+        pins = np.array([pin or (0.0, 0.0) for p in plants for pin in p.pins], np.float64).reshape(B * L, 2).T
+        offsets = np.array([o for p in plants for o in p.offsets], np.float64).reshape(B * L, 2).T
+        moved = np.repeat(np.asarray(moved, bool), L, axis=0)                       # (B * L, n)
+        if not moved.any() and not pinned.any() and not offsets.any():
+            return joints
+        index = np.array(legs)                                                       # (L, K)
+        # (n, K, 3, lanes): each coordinate of a joint over the lanes is one contiguous row
+        x = np.ascontiguousarray(joints[:, :, index].astype(np.float64).transpose(1, 3, 4, 0, 2))
+        x = x.reshape(n, K, 3, B * L)
+        for f in range(n):
+            leg = x[f]
+            dx, dz, shifted, knee, pinned, pins, offsets = _plant(
+                _LANES, leg[0], leg[1], leg[2], leg[K - 1], moved[:, f], pinned, pins, offsets)
+            leg[2:, 0] = np.where(shifted, leg[2:, 0] + dx, leg[2:, 0])          # the foot, ankle to toe
+            leg[2:, 2] = np.where(shifted, leg[2:, 2] + dz, leg[2:, 2])
+            leg[1] = np.where(shifted, np.stack(knee), leg[1])
+        pins, offsets = np.stack(pins), np.stack(offsets)
+        out = joints.copy()
+        out[:, :, index] = x.reshape(n, K, 3, B, L).transpose(3, 0, 4, 1, 2)        # float32 again
+        for b, p in enumerate(plants):
+            lanes = slice(b * L, (b + 1) * L)
+            p.pins = [tuple(q) if on else None for q, on in zip(pins[:, lanes].T.tolist(), pinned[lanes].tolist())]
+            p.offsets = [tuple(o) for o in offsets[:, lanes].T.tolist()]
+        return out
 
     def state(self) -> tuple[list[bool], list[float]]:
         """(pinned per leg, [pin x, z, offset x, z] per leg): all a stream's later joints depend on."""
@@ -122,20 +137,69 @@ class FootPlant:
 STATE_FLOATS = 8       # state()'s floats for two legs
 
 
-def _knee(hip, knee, ankle, l1: float, l2: float) -> list[float]:
-    """The knee of a leg from `hip` to `ankle` with thigh l1 and shin l2, bent the way the motion's `knee` is."""
+class _FLOATS:
+    """Python floats: one leg of one frame (a lone stream's: numpy's cost per call is ~10x the arithmetic's)."""
+    sqrt = staticmethod(math.sqrt)
+
+    @staticmethod
+    def where(condition, a, b):
+        return a if condition else b
+
+
+class _LANES:
+    """numpy arrays: one frame of many legs (a crowd's), each a lane."""
+    sqrt = staticmethod(np.sqrt)
+    where = staticmethod(np.where)
+
+
+def _plant(xp, hip, knee, ankle, toe, moved, pinned, pin, offset):
+    """The rule above, for one frame of a leg: `xp` computes on Python floats (_FLOATS) or on lanes (_LANES); each
+    point is (x, y, z), `pin` and `offset` (x, z) of the leg's state. Both sides of a choice are computed, the lane
+    taking its own (divisions guarded, so a side not taken raises nothing). -> (dx, dz) the foot's shift, whether it
+    shifts, the knee then, and the state after the frame: (down, pin, offset)."""
+    where, sqrt = xp.where, xp.sqrt
+    (hx, hy, hz), (kx, ky, kz), (ax, ay, az), (tx, ty, tz) = hip, knee, ankle, toe
+    down = moved & (ty < PLANT_HEIGHT)
+    # touched down: the pin is where the toe shows now, with the offset it has; lifted, the offset fades
+    px, pz = where(pinned, pin[0], tx + offset[0]), where(pinned, pin[1], tz + offset[1])
+    dx, dz = where(down, px - tx, offset[0] * RELEASE), where(down, pz - tz, offset[1] * RELEASE)
+    l1 = sqrt((kx - hx) * (kx - hx) + (ky - hy) * (ky - hy) + (kz - hz) * (kz - hz))
+    l2 = sqrt((ax - kx) * (ax - kx) + (ay - ky) * (ay - ky) + (az - kz) * (az - kz))
+    reach = REACH * (l1 + l2)
+    bx, by, bz = ax - hx, ay - hy, az - hz
+    ex, ez = bx + dx, bz + dz
+    # out of reach: the offset shortened along itself, |b + s d| = reach, 0 <= s < 1 (s = 0 where the motion itself
+    # is out of reach: its own foot, unplanted); the pin moves with it
+    far = ex * ex + by * by + ez * ez > reach * reach
+    a = dx * dx + dz * dz
+    b = 2.0 * (bx * dx + bz * dz)
+    c = bx * bx + by * by + bz * bz - reach * reach
+    root = b * b - 4.0 * a * c
+    s = where(c >= 0.0, 0.0, (-b + sqrt(where(root < 0.0, 0.0, root))) / where(a == 0.0, 1.0, 2.0 * a))
+    dx, dz = where(far, dx * s, dx), where(far, dz * s, dz)
+    px, pz = where(far, tx + dx, px), where(far, tz + dz, pz)
+    shifted = (dx != 0.0) | (dz != 0.0)
+    return dx, dz, shifted, _knee(xp, hip, knee, (ax + dx, ay, az + dz), l1, l2), down, (px, pz), (dx, dz)
+
+
+def _knee(xp, hip, knee, ankle, l1, l2):
+    """The knee of a leg from `hip` to `ankle` with thigh l1 and shin l2, bent the way the motion's `knee` is (a leg
+    whose ankle is on its hip: the motion's knee); `xp` as _plant's."""
+    where, sqrt = xp.where, xp.sqrt
     vx, vy, vz = ankle[0] - hip[0], ankle[1] - hip[1], ankle[2] - hip[2]
-    d = math.sqrt(vx * vx + vy * vy + vz * vz)
-    if d == 0.0:
-        return knee
+    d = sqrt(vx * vx + vy * vy + vz * vz)
+    on_hip = d == 0.0
+    d = where(on_hip, 1.0, d)
     ux, uy, uz = vx / d, vy / d, vz / d
     along = (l1 * l1 - l2 * l2 + d * d) / (2.0 * d)           # the knee's distance along hip -> ankle
-    side = math.sqrt(max(l1 * l1 - along * along, 0.0))      # and away from that line
+    side = l1 * l1 - along * along                            # and away from that line
+    side = sqrt(where(side < 0.0, 0.0, side))
     kx, ky, kz = knee[0] - hip[0], knee[1] - hip[1], knee[2] - hip[2]
     dot = kx * ux + ky * uy + kz * uz
     px, py, pz = kx - dot * ux, ky - dot * uy, kz - dot * uz  # the motion's bend, across the line
-    n = math.sqrt(px * px + py * py + pz * pz)
-    if n == 0.0:                  # a straight leg: no bend to keep
-        side, n = 0.0, 1.0
-    return [hip[0] + along * ux + side * (px / n), hip[1] + along * uy + side * (py / n),
-            hip[2] + along * uz + side * (pz / n)]
+    n = sqrt(px * px + py * py + pz * pz)
+    straight = n == 0.0                                       # a straight leg: no bend to keep
+    side, n = where(straight, 0.0, side), where(straight, 1.0, n)
+    return (where(on_hip, knee[0], hip[0] + along * ux + side * (px / n)),
+            where(on_hip, knee[1], hip[1] + along * uy + side * (py / n)),
+            where(on_hip, knee[2], hip[2] + along * uz + side * (pz / n)))

@@ -14,14 +14,16 @@ its frames every token (a chunk of 1): a pose a few tokens old would steer from 
 from __future__ import annotations
 
 import threading
+from contextlib import ExitStack
 from typing import Callable
 
 import numpy as np
 
 from ..bundle.sections import ControlSpec, ModelDims
 from ..kinematics.frames import FrameJoints
+from .plant import FootPlant
 from .targets import FollowPath, GameRoot, Steer, WalkTo
-from .vector import control_dim, encode
+from .vector import control_dim, encode, encode_many
 from .warp import RootWarp, wrap
 
 
@@ -59,38 +61,78 @@ class Steering:
         """After a stream's new frames, `index` the next frame's number and `frames` the FrameJoints that made them:
         read the next frame's pose (the capsule's, when the game owns the root), hand the next token's control to
         the stream's context, and plan the correction of the next token's frames (control/warp.py)."""
-        with self._lock:
-            pose = self.warp.pose(frames.next_pose(), index)
-            target = self.target
-            if isinstance(target, GameRoot) and target.pose is not None:
-                pose[:2] = target.at(index)[:2]
-            self.pose, self.frame = pose, index
-            if target is None:
-                self.context.steer(self.vector())
+        Steering.update_many([self], [index], [frames])
+
+    @staticmethod
+    def update_many(steerings: list["Steering"], index: list[int], frames: list[FrameJoints]) -> None:
+        """`update` for many streams at once (a crowd's), the same numbers: their control vectors encoded together."""
+        with ExitStack() as held:
+            for s in steerings:        # a request (one lock) waits for the whole update, as it waits for one
+                held.enter_context(s._lock)
+            steered = []
+            for s, i, joints in zip(steerings, index, frames):
+                pose = s.warp.pose(joints.next_pose(), i)
+                if isinstance(s.target, GameRoot) and s.target.pose is not None:
+                    pose[:2] = s.target.at(i)[:2]
+                s.pose, s.frame = pose, i
+                if s.target is None:
+                    s.context.steer(s.vector())
+                else:
+                    steered.append(s)
+            if not steered:
                 return
-            wanted = self._wanted()
-            self.context.steer(encode(pose, wanted))
-            if not isinstance(target, GameRoot):      # the next token's correction, toward where it should be
-                reference = target.reference()
-                self.warp.plan(index, self.downsample, pose, wrap(float(wanted[0, 2] - pose[2])),
-                               (0.0, 0.0) if reference is None else reference - pose[:2])
+            poses = np.stack([s.pose for s in steered])
+            wanted = np.empty((len(steered), steered[0].spec.horizon, 3))
+            paths = [b for b, s in enumerate(steered) if isinstance(s.target, FollowPath)]
+            if paths:          # the most common request, searched for all at once
+                wanted[paths] = FollowPath.future_many([steered[b].target for b in paths], poses[paths],
+                                                       steered[0].times)
+            for b, s in enumerate(steered):
+                if not isinstance(s.target, FollowPath):
+                    wanted[b] = s._wanted()
+            for s, future, vector in zip(steered, wanted, encode_many(poses, wanted)):
+                s.context.steer(vector)
+                if not isinstance(s.target, GameRoot):      # the next token's correction, toward where it should be
+                    reference = s.target.reference()
+                    s.warp.plan(s.frame, s.downsample, s.pose, wrap(float(future[0, 2] - s.pose[2])),
+                                (0.0, 0.0) if reference is None else reference - s.pose[:2])
 
     def place(self, index: int, joints: np.ndarray) -> np.ndarray:
         """Frames (n, J, 3) numbered index.. as shown: on the game's capsule when the game owns the root (the
         capsule where the game last placed it, moved on by its velocity), else with the correction planned for
         them; either way with the feet planted (control/plant.py). A stream places each frame as it hands it out,
         so a game that calls set_root before reading a frame gets that frame on that capsule."""
-        target = self.target
-        if not isinstance(target, GameRoot) or target.pose is None:
-            return self.warp.joints(index, joints)
-        if not len(joints):
-            return joints
-        capsule = np.stack([target.at(f)[:2] for f in range(index, index + len(joints))])
-        offsets = (capsule - joints[:, 0, [0, 2]]).astype(joints.dtype)
-        placed = joints.copy()
-        placed[..., 0] += offsets[:, None, 0]
-        placed[..., 2] += offsets[:, None, 1]
-        return self.warp.plant.apply(placed, True)
+        return Steering.place_many([self], [index], [joints])[0]
+
+    @staticmethod
+    def place_many(steerings: list["Steering"], index: list[int], joints: list[np.ndarray]) -> list[np.ndarray]:
+        """`place` for many streams at once (a crowd's), the same numbers: stream b's frames joints[b] (n_b, J, 3)
+        numbered index[b].. -> each as shown. The streams with as many frames are placed together."""
+        out: list[np.ndarray | None] = [None] * len(steerings)
+        groups: dict[tuple[int, bool], list[int]] = {}
+        for b, (s, frames) in enumerate(zip(steerings, joints)):
+            owned = isinstance(s.target, GameRoot) and s.target.pose is not None
+            groups.setdefault((len(frames), owned), []).append(b)
+        for (n, owned), members in groups.items():
+            frames = np.stack([joints[b] for b in members])
+            if not owned:
+                placed = RootWarp.joints_many([steerings[b].warp for b in members], [index[b] for b in members],
+                                              frames)
+            elif not n:
+                placed = frames
+            else:
+                placed = frames.copy()
+                for k, b in enumerate(members):
+                    target = steerings[b].target
+                    capsule = np.stack([target.at(f)[:2] for f in range(index[b], index[b] + n)])
+                    offsets = (capsule - frames[k][:, 0, [0, 2]]).astype(frames.dtype)
+                    placed[k, ..., 0] += offsets[:, None, 0]
+                    placed[k, ..., 2] += offsets[:, None, 1]
+                placed = FootPlant.apply_many([steerings[b].warp.plant for b in members], placed,
+                                              np.ones((len(members), n), bool))
+            for k, b in enumerate(members):
+                out[b] = placed[k]
+        return out
 
 
 class Steerable:

@@ -139,29 +139,58 @@ class FollowPath:
 
     def nearest(self, xz: np.ndarray) -> float:
         """Arc length of the point of the path nearest `xz`, searched from the progress so far to LOOKAHEAD on."""
-        # the segment the progress is on (the last one once the progress is the path's whole length: an overshoot)
-        first = min(max(0, bisect_right(self._starts, self.progress) - 1), len(self.lengths) - 1)
-        last = bisect_right(self._starts, self.progress + self.LOOKAHEAD)
-        k = slice(first, min(last, len(self.lengths)) if last > first else first + 1)
-        points, directions = self.points[k], self.directions[k]
-        away = xz - points
-        along = np.minimum(np.maximum(away[:, 0] * directions[:, 0] + away[:, 1] * directions[:, 1], 0.0),
-                           self.lengths[k])
-        foot = points + directions * along[:, None] - xz
-        best = int(np.argmin(np.hypot(foot[:, 0], foot[:, 1])))
-        return float(max(self.progress, self._starts[first + best] + along[best]))
+        return FollowPath.nearest_many([self], np.asarray(xz, np.float64)[None])[0]
+
+    @staticmethod
+    def nearest_many(paths: list["FollowPath"], xz: np.ndarray) -> list[float]:
+        """`nearest` for many paths at once (a crowd's), the same numbers: points (B, 2) -> B arc lengths. The
+        segments searched, path after path, are one array (elementwise arithmetic; numpy's hypot gives the same bits
+        at any array length and offset)."""
+        spans = []
+        for p in paths:
+            # the segment the progress is on (the last one once the progress is the path's whole length: an overshoot)
+            first = min(max(0, bisect_right(p._starts, p.progress) - 1), len(p.lengths) - 1)
+            last = bisect_right(p._starts, p.progress + p.LOOKAHEAD)
+            spans.append((first, min(last, len(p.lengths)) if last > first else first + 1))
+        counts = [b - a for a, b in spans]
+        points = np.concatenate([p.points[a:b] for p, (a, b) in zip(paths, spans)])
+        directions = np.concatenate([p.directions[a:b] for p, (a, b) in zip(paths, spans)])
+        lengths = np.concatenate([p.lengths[a:b] for p, (a, b) in zip(paths, spans)])
+        here = np.repeat(xz, counts, axis=0)
+        away = here - points
+        along = np.minimum(np.maximum(away[:, 0] * directions[:, 0] + away[:, 1] * directions[:, 1], 0.0), lengths)
+        foot = points + directions * along[:, None] - here
+        # each path's segments a row, padded with +inf: argmin per row, the first nearest as each path's own
+        row = np.repeat(np.arange(len(paths)), counts)
+        column = np.arange(len(row)) - np.repeat(np.cumsum(counts) - counts, counts)
+        distance = np.full((len(paths), max(counts)), np.inf)
+        distance[row, column] = np.hypot(foot[:, 0], foot[:, 1])
+        best = np.argmin(distance, axis=1).tolist()
+        along = along.tolist()
+        out, start = [], 0
+        for p, (first, _), k, n in zip(paths, spans, best, counts):
+            out.append(float(max(p.progress, p._starts[first + k] + along[start + k])))
+            start += n
+        return out
 
     def reference(self) -> np.ndarray:
         """Where the root should be now: the point of the path nearest it (the progress `future` found)."""
         return np.array(self.at(self.progress)[:2])
 
     def future(self, now: np.ndarray, times: np.ndarray) -> np.ndarray:
-        self.progress = self.nearest(now[:2])
-        end = self.points[-1] - now[:2]
-        self.arrived = self.arrived or (self.total - self.progress < ARRIVE and float(np.hypot(*end)) < ARRIVE)
-        if self.arrived:
-            return _stand(now, len(times))
-        return np.array([self.at(self.progress + self.speed * t) for t in times.tolist()])
+        return FollowPath.future_many([self], np.asarray(now)[None], times)[0]
+
+    @staticmethod
+    def future_many(paths: list["FollowPath"], now: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """`future` for many paths at once (a crowd's), the same numbers: poses now (B, 3) -> (B, horizon, 3)."""
+        out = np.empty((len(paths), len(times), 3))
+        for p, here, progress, wanted in zip(paths, now, FollowPath.nearest_many(paths, now[:, :2]), out):
+            p.progress = progress
+            end = p.points[-1] - here[:2]
+            p.arrived = p.arrived or (p.total - p.progress < ARRIVE and float(np.hypot(*end)) < ARRIVE)
+            wanted[:] = _stand(here, len(times)) if p.arrived else \
+                [p.at(p.progress + p.speed * t) for t in times.tolist()]
+        return out
 
 
 class Steer:

@@ -26,29 +26,37 @@ def control_dim(horizon: int) -> int:
 
 
 def to_local(now: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """World (x, z) points (..., 2) -> the same in the frame of root pose `now` (x, z, yaw)."""
-    d = np.asarray(points, np.float64) - now[:2]
-    c, s = np.cos(now[2]), np.sin(now[2])
+    """World (x, z) points (..., 2) -> the same in the frame of root pose `now` (x, z, yaw), or of poses (..., 3)
+    that broadcast against the points' leading axes."""
+    d = np.asarray(points, np.float64) - now[..., :2]
+    c, s = np.cos(now[..., 2]), np.sin(now[..., 2])
     return np.stack([d[..., 0] * c - d[..., 1] * s, d[..., 0] * s + d[..., 1] * c], axis=-1)
 
 
 def to_world(now: np.ndarray, local: np.ndarray) -> np.ndarray:
-    """Inverse of `to_local`: (..., 2) in the frame of `now` -> world (x, z)."""
+    """Inverse of `to_local`: (..., 2) in the frame of `now` (as to_local's) -> world (x, z)."""
     local = np.asarray(local, np.float64)
-    c, s = np.cos(now[2]), np.sin(now[2])
+    c, s = np.cos(now[..., 2]), np.sin(now[..., 2])
     return np.stack([local[..., 0] * c + local[..., 1] * s, -local[..., 0] * s + local[..., 1] * c], axis=-1) \
-        + now[:2]
+        + now[..., :2]
 
 
 def encode(now: np.ndarray, future: np.ndarray) -> np.ndarray:
     """Root pose now (3,) and the wanted poses (horizon, 3) one token apart -> the control vector (float32)."""
+    return encode_many(np.asarray(now)[None], np.asarray(future)[None])[0]
+
+
+def encode_many(now: np.ndarray, future: np.ndarray) -> np.ndarray:
+    """`encode` for many streams at once (a crowd's), the same numbers: poses now (B, 3), wanted poses (B, horizon,
+    3) -> (B, dim) float32 (elementwise arithmetic, and numpy's float64 sin and cos, which give libm's bits at any
+    array length: kinematics/frames.py)."""
     now, future = np.asarray(now, np.float64), np.asarray(future, np.float64)
-    out = np.empty(1 + FIELDS * len(future))
-    out[0] = 1.0
-    per_step = out[1:].reshape(-1, FIELDS)
-    per_step[:, :2] = to_local(now, future[:, :2])
-    turn = future[:, 2] - now[2]
-    per_step[:, 2], per_step[:, 3] = np.sin(turn), np.cos(turn)
+    out = np.empty((len(now), 1 + FIELDS * future.shape[1]))
+    out[:, 0] = 1.0
+    per_step = out[:, 1:].reshape(len(now), -1, FIELDS)
+    per_step[..., :2] = to_local(now[:, None], future[..., :2])
+    turn = future[..., 2] - now[:, None, 2]
+    per_step[..., 2], per_step[..., 3] = np.sin(turn), np.cos(turn)
     return out.astype(np.float32)
 
 

@@ -118,18 +118,28 @@ class RootWarp:
 
     def joints(self, index: int, joints: np.ndarray) -> np.ndarray:
         """Frames (n, J, 3) numbered index.. (each once, in order) -> where they stand, feet planted."""
-        if not self.active:
-            return joints if self.plant is None else self.plant.apply(joints, False)
-        warps = [self._warp(index + i) for i in range(len(joints))]       # (phi, tx, tz) per frame
-        c = np.array([[math.cos(phi)] for phi, _, _ in warps])
-        s = np.array([[math.sin(phi)] for phi, _, _ in warps])
-        tx, tz = np.array([[w[1]] for w in warps]), np.array([[w[2]] for w in warps])
-        out = np.array(joints, np.float64)
-        x, z = out[:, :, 0], out[:, :, 2]
-        # turned(phi, x, z) frame by frame, the same products and sums
-        out[:, :, 0], out[:, :, 2] = c * x + s * z + tx, -s * x + c * z + tz
-        out = out.astype(joints.dtype)
-        if self.plant is None:
+        return RootWarp.joints_many([self], [index], np.asarray(joints)[None])[0]
+
+    @staticmethod
+    def joints_many(warps: list["RootWarp"], index: list[int], joints: np.ndarray) -> np.ndarray:
+        """`joints` for many streams at once (a crowd's), the same numbers: frames (B, n, J, 3), stream b's numbered
+        index[b].. -> where they stand, feet planted."""
+        B, n = joints.shape[:2]
+        out = joints
+        # a frame the warp leaves where it was (before the first correction: the eases' zero warp) is not moved
+        moved = np.zeros((B, n), bool)
+        active = [b for b, w in enumerate(warps) if w.active]
+        if active and n:
+            per = [[warps[b]._warp(index[b] + i) for i in range(n)] for b in active]     # (phi, tx, tz) a frame
+            c = np.array([[math.cos(phi) for phi, _, _ in frames] for frames in per])[..., None]
+            s = np.array([[math.sin(phi) for phi, _, _ in frames] for frames in per])[..., None]
+            tx, tz = (np.array([[w[k] for w in frames] for frames in per])[..., None] for k in (1, 2))
+            out, turned = np.array(joints), np.array(joints[active], np.float64)
+            x, z = turned[..., 0], turned[..., 2]
+            # turned(phi, x, z) frame by frame, the same products and sums
+            turned[..., 0], turned[..., 2] = c * x + s * z + tx, -s * x + c * z + tz
+            out[active] = turned
+            moved[active] = [[w != (0.0, 0.0, 0.0) for w in frames] for frames in per]
+        if warps[0].plant is None:
             return out
-        # a frame the warp leaves where it was (the eases before the first correction) is not moved
-        return self.plant.apply(out, [w != (0.0, 0.0, 0.0) for w in warps])
+        return FootPlant.apply_many([w.plant for w in warps], out, moved)
