@@ -354,3 +354,29 @@ def test_a_frame_shown_after_the_next_plan_keeps_its_own_ease():
     warp.plan(4, 4, warp.pose(np.zeros(3), 4), 0.0, np.array([0.0, 0.04]))   # planned before frames 0-3 are shown
     assert np.array_equal(warp.joints(0, body), before)
     assert np.allclose(before[:, 0, 0], [0.005, 0.01, 0.015, 0.02])    # half of 4 cm, eased over 4 frames
+
+
+def test_a_crowd_s_warps_give_each_stream_its_own_frames():
+    """RootWarp.joints_many (a crowd's streams at once) gives each stream the bits its own joints gives it alone:
+    a warp never planned and warps planned every token or every other, each plan for the token after the frames
+    shown (as a stream's update plans before its frames are placed: the first frames of an active warp are not moved),
+    with planted feet or without."""
+    from test_plant import standing
+
+    from mogo_runtime.control.plant import legs_of
+    from mogo_runtime.control.warp import RootWarp
+
+    rng = np.random.default_rng(6)
+    for legs in (legs_of(HUMANML3D), None):
+        alone, together = [RootWarp(legs) for _ in range(3)], [RootWarp(legs) for _ in range(3)]
+        for token in range(12):
+            body = np.stack([standing(4, rng) for _ in range(3)])         # both toes on the floor
+            body[..., [0, 2]] += rng.normal(0, 0.02, (3, 4, 1, 2)).astype(np.float32)    # the body sways
+            for k, (a, b) in enumerate(zip(alone, together)):
+                if k and token % k == 0:      # stream 0 is never corrected; the next token's, as a stream plans
+                    for w in (a, b):
+                        w.plan(4 * token + 4, 4, w.pose(np.zeros(3), 4 * token + 4), 0.02 * k, (0.01, -0.02 * k))
+            want = np.stack([w.joints(4 * token, body[k]) for k, w in enumerate(alone)])
+            got = RootWarp.joints_many(together, [4 * token] * 3, body)
+            assert got.tobytes() == want.tobytes()
+        assert not alone[0].active and alone[1].active and not np.array_equal(want[1], body[1])

@@ -70,15 +70,15 @@ class FootPlant:
         for rows, m in zip(frames, moved):
             for i, leg in enumerate(self._legs):
                 pin = self.pins[i]
-                dx, dz, shifted, knee, down, pin, offset = _plant(_FLOATS, rows[leg[0]], rows[leg[1]], rows[leg[2]],
-                                                                  rows[leg[-1]], m, pin is not None, pin or (0.0, 0.0),
-                                                                  self.offsets[i])
+                hip, knee, ankle = rows[leg[0]], rows[leg[1]], rows[leg[2]]
+                dx, dz, shifted, bones, down, pin, offset = _plant(_FLOATS, hip, knee, ankle, rows[leg[-1]], m,
+                                                                   pin is not None, pin or (0.0, 0.0), self.offsets[i])
                 self.pins[i], self.offsets[i] = pin if down else None, offset
                 if shifted:
                     for j in leg[2:]:           # the foot, ankle to toe
                         rows[j][0] += dx
                         rows[j][2] += dz
-                    rows[leg[1]] = list(knee)
+                    rows[leg[1]] = list(_knee(_FLOATS, hip, knee, ankle, *bones))
         out[:, self._joints] = frames               # float32 again
         return out
 
@@ -88,6 +88,8 @@ class FootPlant:
         next n frames, `moved` (B, n) bool -> the same with planted feet. Each leg of each stream is a lane of
         numpy's elementwise float64 arithmetic, the frames in order: a lane's numbers do not depend on the others'."""
         B, n = joints.shape[:2]
+        if B == 1:          # a lone stream: Python floats (numpy's cost per call is ~10x the arithmetic of 2 lanes)
+            return plants[0].apply(joints[0], np.asarray(moved, bool)[0].tolist())[None]
         legs = plants[0].legs
         if any(p.legs != legs for p in plants):
             raise ValueError("apply_many plants the feet of streams of one skeleton")
@@ -105,11 +107,11 @@ class FootPlant:
         x = x.reshape(n, K, 3, B * L)
         for f in range(n):
             leg = x[f]
-            dx, dz, shifted, knee, pinned, pins, offsets = _plant(
+            dx, dz, shifted, bones, pinned, pins, offsets = _plant(
                 _LANES, leg[0], leg[1], leg[2], leg[K - 1], moved[:, f], pinned, pins, offsets)
             leg[2:, 0] = np.where(shifted, leg[2:, 0] + dx, leg[2:, 0])          # the foot, ankle to toe
             leg[2:, 2] = np.where(shifted, leg[2:, 2] + dz, leg[2:, 2])
-            leg[1] = np.where(shifted, np.stack(knee), leg[1])
+            leg[1] = np.where(shifted, np.stack(_knee(_LANES, leg[0], leg[1], leg[2], *bones)), leg[1])
         pins, offsets = np.stack(pins), np.stack(offsets)
         out = joints.copy()
         out[:, :, index] = x.reshape(n, K, 3, B, L).transpose(3, 0, 4, 1, 2)        # float32 again
@@ -156,7 +158,8 @@ def _plant(xp, hip, knee, ankle, toe, moved, pinned, pin, offset):
     """The rule above, for one frame of a leg: `xp` computes on Python floats (_FLOATS) or on lanes (_LANES); each
     point is (x, y, z), `pin` and `offset` (x, z) of the leg's state. Both sides of a choice are computed, the lane
     taking its own (divisions guarded, so a side not taken raises nothing). -> (dx, dz) the foot's shift, whether it
-    shifts, the knee then, and the state after the frame: (down, pin, offset)."""
+    shifts, the thigh's and shin's lengths (l1, l2: `_knee` places the knee of a shifted foot), and the state after
+    the frame: (down, pin, offset)."""
     where, sqrt = xp.where, xp.sqrt
     (hx, hy, hz), (kx, ky, kz), (ax, ay, az), (tx, ty, tz) = hip, knee, ankle, toe
     down = moved & (ty < PLANT_HEIGHT)
@@ -179,7 +182,7 @@ def _plant(xp, hip, knee, ankle, toe, moved, pinned, pin, offset):
     dx, dz = where(far, dx * s, dx), where(far, dz * s, dz)
     px, pz = where(far, tx + dx, px), where(far, tz + dz, pz)
     shifted = (dx != 0.0) | (dz != 0.0)
-    return dx, dz, shifted, _knee(xp, hip, knee, (ax + dx, ay, az + dz), l1, l2), down, (px, pz), (dx, dz)
+    return dx, dz, shifted, (l1, l2), down, (px, pz), (dx, dz)
 
 
 def _knee(xp, hip, knee, ankle, l1, l2):

@@ -82,14 +82,17 @@ class Steering:
             if not steered:
                 return
             poses = np.stack([s.pose for s in steered])
-            wanted = np.empty((len(steered), steered[0].spec.horizon, 3))
             paths = [b for b, s in enumerate(steered) if isinstance(s.target, FollowPath)]
-            if paths:          # the most common request, searched for all at once
-                wanted[paths] = FollowPath.future_many([steered[b].target for b in paths], poses[paths],
-                                                       steered[0].times)
-            for b, s in enumerate(steered):
-                if not isinstance(s.target, FollowPath):
-                    wanted[b] = s._wanted()
+            if len(paths) == len(steered):      # the most common request, searched for all at once
+                wanted = FollowPath.future_many([s.target for s in steered], poses, steered[0].times)
+            else:
+                wanted = np.empty((len(steered), steered[0].spec.horizon, 3))
+                if paths:
+                    wanted[paths] = FollowPath.future_many([steered[b].target for b in paths], poses[paths],
+                                                           steered[0].times)
+                for b, s in enumerate(steered):
+                    if not isinstance(s.target, FollowPath):
+                        wanted[b] = s._wanted()
             for s, future, vector in zip(steered, wanted, encode_many(poses, wanted)):
                 s.context.steer(vector)
                 if not isinstance(s.target, GameRoot):      # the next token's correction, toward where it should be
@@ -114,7 +117,7 @@ class Steering:
             owned = isinstance(s.target, GameRoot) and s.target.pose is not None
             groups.setdefault((len(frames), owned), []).append(b)
         for (n, owned), members in groups.items():
-            frames = np.stack([joints[b] for b in members])
+            frames = joints[members[0]][None] if len(members) == 1 else np.stack([joints[b] for b in members])
             if not owned:
                 placed = RootWarp.joints_many([steerings[b].warp for b in members], [index[b] for b in members],
                                               frames)

@@ -153,19 +153,26 @@ class FollowPath:
             last = bisect_right(p._starts, p.progress + p.LOOKAHEAD)
             spans.append((first, min(last, len(p.lengths)) if last > first else first + 1))
         counts = [b - a for a, b in spans]
-        points = np.concatenate([p.points[a:b] for p, (a, b) in zip(paths, spans)])
-        directions = np.concatenate([p.directions[a:b] for p, (a, b) in zip(paths, spans)])
-        lengths = np.concatenate([p.lengths[a:b] for p, (a, b) in zip(paths, spans)])
-        here = np.repeat(xz, counts, axis=0)
+        if len(paths) == 1:
+            (first, stop), p = spans[0], paths[0]
+            points, directions, lengths = p.points[first:stop], p.directions[first:stop], p.lengths[first:stop]
+            here = xz
+        else:
+            points = np.concatenate([p.points[a:b] for p, (a, b) in zip(paths, spans)])
+            directions = np.concatenate([p.directions[a:b] for p, (a, b) in zip(paths, spans)])
+            lengths = np.concatenate([p.lengths[a:b] for p, (a, b) in zip(paths, spans)])
+            here = np.repeat(xz, counts, axis=0)
         away = here - points
         along = np.minimum(np.maximum(away[:, 0] * directions[:, 0] + away[:, 1] * directions[:, 1], 0.0), lengths)
         foot = points + directions * along[:, None] - here
-        # each path's segments a row, padded with +inf: argmin per row, the first nearest as each path's own
-        row = np.repeat(np.arange(len(paths)), counts)
-        column = np.arange(len(row)) - np.repeat(np.cumsum(counts) - counts, counts)
-        distance = np.full((len(paths), max(counts)), np.inf)
-        distance[row, column] = np.hypot(foot[:, 0], foot[:, 1])
-        best = np.argmin(distance, axis=1).tolist()
+        distance = np.hypot(foot[:, 0], foot[:, 1])
+        if len(paths) == 1:
+            best = [int(np.argmin(distance))]
+        else:       # each path's segments a row, padded with +inf: argmin per row, the first nearest as its own
+            row = np.repeat(np.arange(len(paths)), counts)
+            padded = np.full((len(paths), max(counts)), np.inf)
+            padded[row, np.arange(len(row)) - np.repeat(np.cumsum(counts) - counts, counts)] = distance
+            best = np.argmin(padded, axis=1).tolist()
         along = along.tolist()
         out, start = [], 0
         for p, (first, _), k, n in zip(paths, spans, best, counts):

@@ -125,21 +125,25 @@ class RootWarp:
         """`joints` for many streams at once (a crowd's), the same numbers: frames (B, n, J, 3), stream b's numbered
         index[b].. -> where they stand, feet planted."""
         B, n = joints.shape[:2]
-        out = joints
+        active = [b for b, w in enumerate(warps) if w.active]
         # a frame the warp leaves where it was (before the first correction: the eases' zero warp) is not moved
         moved = np.zeros((B, n), bool)
-        active = [b for b, w in enumerate(warps) if w.active]
+        out = joints
         if active and n:
-            per = [[warps[b]._warp(index[b] + i) for i in range(n)] for b in active]     # (phi, tx, tz) a frame
-            c = np.array([[math.cos(phi) for phi, _, _ in frames] for frames in per])[..., None]
-            s = np.array([[math.sin(phi) for phi, _, _ in frames] for frames in per])[..., None]
-            tx, tz = (np.array([[w[k] for w in frames] for frames in per])[..., None] for k in (1, 2))
-            out, turned = np.array(joints), np.array(joints[active], np.float64)
+            # (phi, tx, tz) of each frame of each active stream
+            warp = np.array([warps[b]._warp(index[b] + i) for b in active for i in range(n)]).reshape(-1, n, 3, 1)
+            phi, tx, tz = warp[:, :, 0], warp[:, :, 1], warp[:, :, 2]
+            c, s = np.cos(phi), np.sin(phi)
+            every = len(active) == B
+            turned = (joints if every else joints[active]).astype(np.float64)
             x, z = turned[..., 0], turned[..., 2]
             # turned(phi, x, z) frame by frame, the same products and sums
             turned[..., 0], turned[..., 2] = c * x + s * z + tx, -s * x + c * z + tz
-            out[active] = turned
-            moved[active] = [[w != (0.0, 0.0, 0.0) for w in frames] for frames in per]
+            if every:
+                out, moved = turned.astype(joints.dtype), warp[..., 0].any(axis=2)
+            else:
+                out = joints.copy()
+                out[active], moved[active] = turned, warp[..., 0].any(axis=2)
         if warps[0].plant is None:
             return out
         return FootPlant.apply_many([w.plant for w in warps], out, moved)
