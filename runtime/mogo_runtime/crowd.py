@@ -12,9 +12,10 @@
     crowd.remove(walker)
 
 A character is an endless stream (endless.StreamContext) whose frames come through a decoding.FrameMaker, as
-`gen.stream(prompt, seed=seed)`'s do; only its step call is shared. So its tokens and frames are bit for bit what
-that stream gives it alone, whoever else is in the crowd (tests/runtime/test_crowd.py): the graphs compute each row
-on its own (checked on `base`: a row's logits and features are identical alone and in a batch of 24).
+`gen.stream(prompt, seed=seed)`'s do; only its calls are shared (the step, the decoder, the joints and the steering of
+every character at once). So its tokens and frames are bit for bit what that stream gives it alone, whoever else is in
+the crowd (tests/runtime/test_crowd.py, test_control.py): the graphs compute each row on its own (checked on `base`: a
+row's logits and features are identical alone and in a batch of 24), and the Python around them is elementwise.
 
 The step graph must be the fixed-capacity one (`portable`; `int8_fixed`: per-row int8, where per-tensor int8
 would make a character's numbers depend on its neighbours; or `compact`: int8-stored weights, float32 arithmetic): each row carries its own `position`, so characters at
