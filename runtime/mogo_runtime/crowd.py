@@ -39,6 +39,7 @@ from .control.steering import Steerable, Steering
 from .decoding import FrameMaker, Frames, check_chunk, decode_due
 from .endless import Feed, StreamContext
 from .engine import FixedCacheBackend, compact_slots
+from .kinematics.frames import FrameJoints
 from .outputs.motion import Motion
 from .policy import StepPolicy, expand_seeds
 from .text import check_texts
@@ -353,8 +354,9 @@ class Crowd:
             features = decode_due(self.backend, [c.frames for c in chars], n)
             out.update(zip(chars, FrameMaker.frames_many([c.frames for c in chars], features)))
         steered = [c for c in out if c.steering is not None]
-        Steering.update_many([c.steering for c in steered], [out[c].index + len(out[c].joints) for c in steered],
-                             [c.frames.joints for c in steered])
+        if steered:
+            Steering.update_many([c.steering for c in steered], [out[c].index + len(out[c].joints) for c in steered],
+                                 FrameJoints.next_pose_many([c.frames.joints for c in steered]))
         placed = Steering.place_many([c.steering for c in steered], [out[c].index for c in steered],
                                      [out[c].joints for c in steered])
         for c, joints in zip(steered, placed):

@@ -19,7 +19,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterator
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -87,7 +87,12 @@ class FrameStream(Steerable):
         control = task.backend.control
         self.steering = Steering(control, task.backend.dims, self._loop.streams[0], legs_of(task.skeleton)) \
             if control is not None and self._loop is not None else None
-        self._frames = _frames(task.stream(emb, seed, chunk, self._loop, self.steering), task.backend.dims.fps)
+        self._chunks = task.stream(emb, seed, chunk, self._loop, self.steering)
+        self._fps = task.backend.dims.fps
+        self._chunk: Frames | None = None    # the frames decoded last, and how many of them were handed out
+        self._next = 0
+        self._placed: np.ndarray | None = None      # the chunk's frames placed at its first (_place)
+        self._saved: tuple | None = None             # the planted feet's state before them
         self._closed = False
         self._shown = 0                  # the number of the next frame handed out
         # (token, text, aligned text) of the last SWITCH_HISTORY set_prompt calls: a stream runs for days
@@ -97,15 +102,36 @@ class FrameStream(Steerable):
         return self
 
     def __next__(self) -> Frame:
-        try:
-            frame = next(self._frames)
-        except StopIteration:
-            self._closed = True
-            raise
-        self._shown = frame.index + 1
-        if self.steering is not None:        # on the game's capsule as placed up to now, when it owns the root
-            frame.joints = self.steering.place(frame.index, frame.joints[None])[0]
-        return frame
+        while self._chunk is None or self._next == len(self._chunk.joints):
+            try:
+                self._chunk, self._next, self._placed = next(self._chunks), 0, None
+            except StopIteration:
+                self._closed = True
+                raise
+        k, chunk = self._next, self._chunk
+        index = chunk.index + k
+        joints = chunk.joints[k] if self.steering is None else self._place(chunk, k)
+        self._next, self._shown = k + 1, index + 1
+        return Frame(index=index, time=index / self._fps, features=chunk.features[k], joints=joints)
+
+    def _place(self, chunk: Frames, k: int) -> np.ndarray:
+        """Frame k of `chunk` as shown (Steering.place), each placed as it is handed out: on the game's capsule as
+        placed up to now when it owns the root. Where it does not, the chunk's frames are placed together at its
+        first (a token's frames in one call, not four: the correction's eases change only when the next chunk is
+        decoded); if the game takes the root within the chunk, the feet go back to the chunk's start, the frames
+        shown are placed again (the same numbers) and the rest one by one, as they would have been."""
+        s = self.steering
+        owned = s.game_owns_root
+        if k == 0 and not owned:
+            self._saved = s.warp.plant.state()
+            self._placed = s.place(chunk.index, chunk.joints)
+        if self._placed is not None:
+            if not owned:
+                return self._placed[k]
+            s.warp.plant.load(*self._saved)
+            s.warp.joints(chunk.index, chunk.joints[:k])
+            self._placed = None
+        return s.place(chunk.index + k, chunk.joints[k:k + 1])[0]
 
     @property
     def tokens(self) -> int:
@@ -145,13 +171,7 @@ class FrameStream(Steerable):
 
     def close(self) -> None:
         self._closed = True
-        self._frames.close()
-
-
-def _frames(chunks: Iterator[Frames], fps: float) -> Iterator[Frame]:
-    for chunk in chunks:
-        for i, (f, j) in enumerate(zip(chunk.features, chunk.joints), chunk.index):
-            yield Frame(index=i, time=i / fps, features=f, joints=j)
+        self._chunks.close()
 
 
 class MotionGenerator:

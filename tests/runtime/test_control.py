@@ -171,6 +171,32 @@ def test_a_crowd_character_goes_where_a_lone_stream_goes(tiny_bundle):
     assert len(ticked) == len(lone) and np.array_equal(ticked, lone)
 
 
+def test_the_game_takes_the_root_between_two_frames_of_a_token(tiny_bundle):
+    """A stream places a token's frames together when it hands out the first (the game does not own the root); a
+    set_root before its second frame still puts that frame on the capsule, and leaves the frames shown before it as a
+    stream never given the root shows them; given back, the stream goes on (finite, and elsewhere than before)."""
+    gen = MotionGenerator(tiny_bundle, variant="portable")
+    ds = gen.dims.downsample
+    path = [(0.0, 0.0), (2.0, 1.0), (5.0, 1.0)]
+    plain, taken = gen.stream("a person walks forward", seed=4), gen.stream("a person walks forward", seed=4)
+    plain.follow_path(path)
+    taken.follow_path(path)
+    shown = []
+    for f in range(12 * ds):
+        frame = next(taken)
+        shown.append(frame)
+        assert np.array_equal(frame.joints, next(plain).joints)
+    shown.append(next(taken))                             # the first frame of a token: all its frames placed
+    next(plain)
+    assert shown[-1].index % ds == 0 and ds > 1
+    taken.set_root(0.5, -0.25, 0.3)
+    frame = next(taken)                                   # the token's second
+    assert frame.index % ds == 1 and np.allclose(frame.joints[0, [0, 2]], [0.5, -0.25], atol=1e-6)
+    taken.release()
+    rest = [next(taken).joints for _ in range(6 * ds + 1)]
+    assert np.isfinite(rest).all() and not np.array_equal(rest[-1], next(plain).joints)
+
+
 def test_the_game_owns_the_root(tiny_bundle):
     """set_root before every token: each frame's root is where the capsule is (extrapolated within a token)."""
     gen = MotionGenerator(tiny_bundle, variant="fp32")

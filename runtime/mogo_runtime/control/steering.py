@@ -41,6 +41,11 @@ class Steering:
         self.pose = np.zeros(3)            # the root of the next frame: frame 0 stands at the origin facing +z
         self.frame = 0                     # the next frame's index
 
+    @property
+    def game_owns_root(self) -> bool:
+        """Whether the game owns the root (set_root has placed its capsule): frames go where the capsule is."""
+        return isinstance(self.target, GameRoot) and self.target.pose is not None
+
     def vector(self) -> np.ndarray:
         """The control vector of the next token: zeros without a target."""
         return np.zeros(self.spec.dim, np.float32) if self.target is None else encode(self.pose, self._wanted())
@@ -61,18 +66,19 @@ class Steering:
         """After a stream's new frames, `index` the next frame's number and `frames` the FrameJoints that made them:
         read the next frame's pose (the capsule's, when the game owns the root), hand the next token's control to
         the stream's context, and plan the correction of the next token's frames (control/warp.py)."""
-        Steering.update_many([self], [index], [frames])
+        Steering.update_many([self], [index], frames.next_pose()[None])
 
     @staticmethod
-    def update_many(steerings: list["Steering"], index: list[int], frames: list[FrameJoints]) -> None:
-        """`update` for many streams at once (a crowd's), the same numbers: their control vectors encoded together."""
+    def update_many(steerings: list["Steering"], index: list[int], model_pose: np.ndarray) -> None:
+        """`update` for many streams at once (a crowd's), the same numbers: `model_pose` (B, 3) the next frame's pose
+        of each stream's motion (FrameJoints.next_pose_many); their control vectors encoded together."""
         with ExitStack() as held:
             for s in steerings:        # a request (one lock) waits for the whole update, as it waits for one
                 held.enter_context(s._lock)
             steered = []
-            for s, i, joints in zip(steerings, index, frames):
-                pose = s.warp.pose(joints.next_pose(), i)
-                if isinstance(s.target, GameRoot) and s.target.pose is not None:
+            now = RootWarp.pose_many([s.warp for s in steerings], model_pose, index)
+            for s, i, pose in zip(steerings, index, now):
+                if s.game_owns_root:
                     pose[:2] = s.target.at(i)[:2]
                 s.pose, s.frame = pose, i
                 if s.target is None:
@@ -114,8 +120,7 @@ class Steering:
         out: list[np.ndarray | None] = [None] * len(steerings)
         groups: dict[tuple[int, bool], list[int]] = {}
         for b, (s, frames) in enumerate(zip(steerings, joints)):
-            owned = isinstance(s.target, GameRoot) and s.target.pose is not None
-            groups.setdefault((len(frames), owned), []).append(b)
+            groups.setdefault((len(frames), s.game_owns_root), []).append(b)
         for (n, owned), members in groups.items():
             frames = joints[members[0]][None] if len(members) == 1 else np.stack([joints[b] for b in members])
             if not owned:
