@@ -39,7 +39,6 @@ from .control.steering import Steerable, Steering
 from .decoding import FrameMaker, Frames, check_chunk, decode_due
 from .endless import Feed, StreamContext
 from .engine import FixedCacheBackend, compact_slots
-from .kinematics.frames import FrameJoints
 from .outputs.motion import Motion
 from .policy import StepPolicy, expand_seeds
 from .text import check_texts
@@ -356,7 +355,7 @@ class Crowd:
         steered = [c for c in out if c.steering is not None]
         if steered:
             Steering.update_many([c.steering for c in steered], [out[c].index + len(out[c].joints) for c in steered],
-                                 FrameJoints.next_pose_many([c.frames.joints for c in steered]))
+                                 np.stack([c.frames.joints.next_pose() for c in steered]))
         placed = Steering.place_many([c.steering for c in steered], [out[c].index for c in steered],
                                      [out[c].joints for c in steered])
         for c, joints in zip(steered, placed):

@@ -71,13 +71,13 @@ class Steering:
     @staticmethod
     def update_many(steerings: list["Steering"], index: list[int], model_pose: np.ndarray) -> None:
         """`update` for many streams at once (a crowd's), the same numbers: `model_pose` (B, 3) the next frame's pose
-        of each stream's motion (FrameJoints.next_pose_many); their control vectors encoded together."""
+        of each stream's motion (FrameJoints.next_pose); their control vectors encoded together."""
         with ExitStack() as held:
             for s in steerings:        # a request (one lock) waits for the whole update, as it waits for one
                 held.enter_context(s._lock)
             steered = []
-            now = RootWarp.pose_many([s.warp for s in steerings], model_pose, index)
-            for s, i, pose in zip(steerings, index, now):
+            for s, i, model in zip(steerings, index, model_pose):
+                pose = s.warp.pose(model, i)
                 if s.game_owns_root:
                     pose[:2] = s.target.at(i)[:2]
                 s.pose, s.frame = pose, i

@@ -93,21 +93,12 @@ class RootWarp:
     def pose(self, model_pose: np.ndarray, frame: int) -> np.ndarray:
         """The pose (x, z, yaw) of the model's motion at `frame` -> where it stands (the eases planned so far; a
         frame past them where the last one ends)."""
-        return RootWarp.pose_many([self], np.asarray(model_pose)[None], [frame])[0]
-
-    @staticmethod
-    def pose_many(warps: list["RootWarp"], model_pose: np.ndarray, frame: list[int]) -> np.ndarray:
-        """`pose` for many streams at once (a crowd's), the same numbers: poses (B, 3), stream b's at frame[b]."""
-        out = np.array(model_pose, np.float64)
-        active = [b for b, w in enumerate(warps) if w.active]
-        if active:
-            phi, tx, tz = np.array([warps[b]._warp(frame[b]) for b in active]).T
-            x, z = out[active, 0], out[active, 1]
-            c, s = np.cos(phi), np.sin(phi)
-            # turned(phi, x, z), then the shift: the same products and sums
-            out[active, 0], out[active, 1] = c * x + s * z + tx, -s * x + c * z + tz
-            out[active, 2] += phi
-        return out
+        x, z, yaw = (float(v) for v in model_pose)
+        if self.active:
+            phi, tx, tz = self._warp(frame)
+            x, z = turned(phi, x, z)
+            x, z, yaw = x + tx, z + tz, yaw + phi
+        return np.array([x, z, yaw])
 
     def plan(self, start: int, frames: int, pose: np.ndarray, turn: float, shift) -> None:
         """From frame `start`: ease in a turn of GAIN * `turn` rad about `pose` (x, z, where it stands) and a shift

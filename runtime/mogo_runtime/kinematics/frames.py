@@ -74,18 +74,11 @@ class RootIntegrator:
     def next_pose(self) -> np.ndarray:
         """The root pose (x, z, yaw) of the next frame, which the frames so far fix (yaw as control/vector.py has
         it: the root faces (sin yaw, cos yaw))."""
-        return RootIntegrator.next_pose_many([self])[0]
-
-    @staticmethod
-    def next_pose_many(roots: list["RootIntegrator"]) -> np.ndarray:
-        """`next_pose` for many streams at once, the same numbers: (B, 3)."""
-        previous = np.stack([r.previous for r in roots])                  # (B, 3): rot_vel, vx, vz
-        position = np.stack([r.position for r in roots])
-        angle = np.array([r.angle for r in roots], np.float64) + previous[:, 0]
+        rot_vel, vx, vz = self.previous
+        angle = self.angle + rot_vel
         cos2, sin2 = np.cos(2 * angle), np.sin(2 * angle)
-        vx, vz = previous[:, 1], previous[:, 2]
-        return np.stack([position[:, 0] + (cos2 * vx - sin2 * vz), position[:, 1] + (sin2 * vx + cos2 * vz),
-                         -2.0 * angle], axis=1)
+        x, z = self.position + (cos2 * vx - sin2 * vz, sin2 * vx + cos2 * vz)
+        return np.array([x, z, -2.0 * angle])
 
 
 class FootLock:
@@ -166,11 +159,6 @@ class FrameJoints:
 
     def next_pose(self) -> np.ndarray:
         """The root pose (x, z, yaw) of the next frame, where the frames so far put it (the lock's offset too)."""
-        return FrameJoints.next_pose_many([self])[0]
-
-    @staticmethod
-    def next_pose_many(streams: list["FrameJoints"]) -> np.ndarray:
-        """`next_pose` for many streams at once, the same numbers: (B, 3)."""
-        pose = RootIntegrator.next_pose_many([s.root for s in streams])
-        pose[:, :2] += np.stack([s.lock.offset for s in streams])
+        pose = self.root.next_pose()
+        pose[:2] += self.lock.offset
         return pose
