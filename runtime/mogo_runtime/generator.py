@@ -102,6 +102,8 @@ class FrameStream(Steerable):
         return self
 
     def __next__(self) -> Frame:
+        if self._closed:                     # close(): the frames decoded and not read are dropped
+            raise StopIteration
         while self._chunk is None or self._next == len(self._chunk.joints):
             try:
                 self._chunk, self._next, self._placed = next(self._chunks), 0, None

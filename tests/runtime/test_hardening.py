@@ -346,11 +346,12 @@ def test_one_thread_ticks_a_crowd(portable_toy_bundle, monkeypatch):  # noqa: F8
 
 
 def test_closed_streams_and_removed_characters_follow_no_prompt(toy_bundle, portable_toy_bundle):  # noqa: F811
-    s = MotionGenerator(toy_bundle).stream(WALK, seed=0)
+    s = MotionGenerator(toy_bundle).stream(WALK, seed=0, chunk=4)
     next(s)
     s.close()
     with pytest.raises(ValueError, match="this stream is closed"):
         s.set_prompt(JUMP)
+    assert list(s) == []            # the frames decoded and not read are dropped: it hands out no more
     crowd = Crowd(MotionGenerator(portable_toy_bundle, variant="portable"))
     c = crowd.add(WALK)
     crowd.remove(c)
