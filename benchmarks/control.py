@@ -256,49 +256,59 @@ def cost(bundle: str, characters: int, ticks: int, seed: int) -> dict:
     """Per character-token time of a crowd walking paths against the same crowd without control, in two phases:
     `fresh` (no context long enough to be rebuilt yet) and `steady` (`ticks` ticks from tick STEADY on). Timed in
     rounds of whole decode periods: at chunk 4 three ticks in four decode nothing, so a median tick (as this
-    measured before) left the decode out of the uncontrolled crowd's cost. Step rows per tick are counted: a
-    character that does not end its motion rebuilds its context every `refresh` tokens (window + 1 rows)."""
+    measured before) left the decode out of the uncontrolled crowd's cost. The crowds run side by side, a round each
+    in turn, so a slow spell of the machine falls on all of them (one crowd after another, the ratio moved by 10%
+    between runs). Step rows per tick are counted: a character that does not end its motion rebuilds its context
+    every `refresh` tokens (window + 1 rows)."""
     from mogo_runtime import MotionGenerator
     from mogo_runtime.crowd import Crowd
 
     gen = MotionGenerator(bundle, variant="int8_fixed", threads=1)
     rng = np.random.default_rng([seed, 5])
-    out: dict = {}
-    for name, chunk, controlled in (("free_chunk4", 4, False), ("free_chunk1", 1, False), ("controlled", 4, True)):
-        crowd = Crowd(gen, chunk=chunk)
-        rows: list[int] = []
-        step = crowd.backend.step_in_place
-
-        def counted(emb, *args):
-            rows.append(len(emb))
-            return step(emb, *args)
-        crowd.backend.step_in_place = counted
+    names = ("free_chunk4", "free_chunk1", "controlled")
+    crowds, rows = {}, {name: [] for name in names}
+    step = gen.backend.step_in_place
+    for name, chunk, controlled in zip(names, (4, 1, 4), (False, False, True)):
+        crowds[name] = Crowd(gen, chunk=chunk)
         for c in range(characters):
-            ch = crowd.add(WALK, seed=c)
+            ch = crowds[name].add(WALK, seed=c)
             if controlled:
                 ch.follow_path(smooth_path(rng, 1.3, 120.0), speed=1.3)
 
-        def timed(n: int) -> dict:
-            rows.clear()
-            rounds = []
-            for _ in range(max(1, n // ROUND)):
-                t = time.perf_counter()
-                for _ in range(ROUND):
-                    crowd.tick()
-                rounds.append(time.perf_counter() - t)
-            return {"per_character_token_ms": 1e3 * float(np.median(rounds)) / ROUND / characters,
-                    "step_rows_per_character_token": sum(rows) / (len(rounds) * ROUND * characters)}
-        for _ in range(FRESH[0]):                   # warm: every context built, allocations made
-            crowd.tick()
-        fresh = timed(FRESH[1] - FRESH[0])
-        for _ in range(STEADY - FRESH[1]):
-            crowd.tick()
-        out[name] = {"fresh": fresh, "steady": timed(ticks),
-                     "restarts_per_character_minute": sum(c.restarts for c in crowd.characters) / characters
-                     / ((STEADY + ticks) * gen.dims.downsample / gen.dims.fps / 60)}
-        del crowd.backend.step_in_place             # the generator's backend, shared by the next crowd
+    def run(name: str, n: int) -> float:
+        def counted(emb, *args):
+            rows[name].append(len(emb))
+            return step(emb, *args)
+        gen.backend.step_in_place = counted
+        try:
+            t = time.perf_counter()
+            for _ in range(n):
+                crowds[name].tick()
+            return time.perf_counter() - t
+        finally:
+            del gen.backend.step_in_place           # the generator's backend, shared by the crowds
+
+    def timed(n: int) -> dict:
+        for name in names:
+            rows[name].clear()
+        rounds = {name: [] for name in names}
+        for _ in range(max(1, n // ROUND)):
+            for name in names:
+                rounds[name].append(run(name, ROUND))
+        return {name: {"per_character_token_ms": 1e3 * float(np.median(rounds[name])) / ROUND / characters,
+                       "step_rows_per_character_token": sum(rows[name]) / (len(rounds[name]) * ROUND * characters)}
+                for name in names}
+    for name in names:                              # warm: every context built, allocations made
+        run(name, FRESH[0])
+    fresh = timed(FRESH[1] - FRESH[0])
+    for name in names:
+        run(name, STEADY - FRESH[1])
+    steady = timed(ticks)
+    out: dict = {name: {"fresh": fresh[name], "steady": steady[name],
+                        "restarts_per_character_minute": sum(c.restarts for c in crowds[name].characters) / characters
+                        / ((STEADY + ticks) * gen.dims.downsample / gen.dims.fps / 60)} for name in names}
     for phase in ("fresh", "steady"):
-        ms = {name: out[name][phase]["per_character_token_ms"] for name in ("free_chunk4", "free_chunk1", "controlled")}
+        ms = {name: out[name][phase]["per_character_token_ms"] for name in names}
         out[f"controlled_over_free_{phase}"] = ms["controlled"] / ms["free_chunk4"]
         out[f"controlled_over_free_chunk1_{phase}"] = ms["controlled"] / ms["free_chunk1"]
     return {"characters": characters, "ticks": ticks, **out}

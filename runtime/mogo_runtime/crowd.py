@@ -39,6 +39,7 @@ from .control.steering import Steerable, Steering
 from .decoding import FrameMaker, Frames, check_chunk, decode_due
 from .endless import Feed, StreamContext
 from .engine import FixedCacheBackend, compact_slots
+from .kinematics.frames import FrameJoints
 from .outputs.motion import Motion
 from .policy import StepPolicy, expand_seeds
 from .text import check_texts
@@ -91,8 +92,8 @@ class Character(Steerable):
         self.context = StreamContext(crowd.policy, cond.emb, seed, crowd.gen.bundle.manifest.streaming,
                                      control.dim if control else 0, cond.limits)
         self.frames = FrameMaker(crowd.gen.dims, crowd.gen.skeleton, crowd.chunk, crowd.backend.decoder_state)
-        self.steering = Steering(control, crowd.gen.dims, self.context, legs_of(crowd.gen.skeleton)) \
-            if control else None
+        self.steering = Steering(control, crowd.gen.dims, self.context, legs_of(crowd.gen.skeleton),
+                                 crowd.steering_lock) if control else None
         self.switches: deque[tuple[int, str]] = deque(maxlen=SWITCH_HISTORY)
         self.recorded: tuple[list, list, list] | None = ([], [], []) if record else None   # tokens, features, joints
 
@@ -159,6 +160,7 @@ class Crowd:
         self._asked: deque[int] = deque(maxlen=SCRATCH_CALLS)    # rows of the last rebuilds' scratch
         self._next_id = 0
         self._lock = threading.Lock()
+        self.steering_lock = threading.Lock()      # every character's Steering's: a tick's update takes it once
         # a character's rows, in the crowd's cache and in the scratch rows of a rebuild
         self.character_bytes = 2 * self.policy.rows * sum(a[:1].nbytes for a in self.backend.empty_past(1).arrays)
         self.max_characters = (as_int("max_characters", max_characters, "an int >= 1 or None", 1)
@@ -355,7 +357,7 @@ class Crowd:
         steered = [c for c in out if c.steering is not None]
         if steered:
             Steering.update_many([c.steering for c in steered], [out[c].index + len(out[c].joints) for c in steered],
-                                 np.stack([c.frames.joints.next_pose() for c in steered]))
+                                 FrameJoints.next_poses([c.frames.joints for c in steered]))
         placed = Steering.place_many([c.steering for c in steered], [out[c].index for c in steered],
                                      [out[c].joints for c in steered])
         for c, joints in zip(steered, placed):

@@ -133,13 +133,31 @@ class FrameMaker:
     def __init__(self, dims: ModelDims, skeleton: Skeleton, chunk: int = 1,
                  decoder_state: tuple[tuple[int, int], ...] | None = None):
         self.dims, self.chunk = dims, check_chunk(chunk)
-        # the decoder_step graph's state, zeros at a motion's start (the left padding of a whole-motion decode)
-        self.state = None if decoder_state is None else [np.zeros(s, np.float32) for s in decoder_state]
+        # the decoder_step graph's state, zeros at a motion's start (the left padding of a whole-motion decode): its
+        # arrays one after another in one row, so a crowd gathers and hands back each stream's with one operation
+        self._shapes = decoder_state
+        self._state = None if decoder_state is None else np.zeros(sum(r * c for r, c in decoder_state), np.float32)
         self.tokens = np.zeros((dims.receptive_field + self.chunk, dims.num_levels), np.int64)
         self.count = 0      # tokens pushed
         self.pending = 0    # tokens pushed whose frames were not made yet
         self.frames = 0     # frames made
         self.joints = FrameJoints(skeleton)
+
+    @property
+    def state(self) -> list[np.ndarray] | None:
+        """The decoder_step graph's state (one array per state input, [reach, channels]), or None without one."""
+        if self._state is None:
+            return None
+        return [self._state[a - r * c:a].reshape(r, c) for (r, c), a in
+                zip(self._shapes, np.cumsum([r * c for r, c in self._shapes]).tolist())]
+
+    @state.setter
+    def state(self, arrays: list[np.ndarray]) -> None:
+        sizes = [r * c for r, c in self._shapes or ()]
+        if self._state is None or [np.size(a) for a in arrays] != sizes:
+            raise ValueError(f"a decoder state of {len(sizes)} arrays of {sizes} values, got "
+                             f"{[np.size(a) for a in arrays]}")
+        self._state = np.concatenate([np.asarray(a, np.float32).ravel() for a in arrays])
 
     def push(self, picked: np.ndarray) -> int:
         """The stream's next token (L,) -> how many tokens to decode now (`due`)."""
@@ -154,7 +172,7 @@ class FrameMaker:
         pending token's frames are due."""
         if not self.pending or not (final or self.count == 1 or self.pending >= self.chunk):
             return 0
-        return self.pending if self.state is not None else min(self.count, self.dims.receptive_field + self.pending)
+        return self.pending if self._state is not None else min(self.count, self.dims.receptive_field + self.pending)
 
     def window(self, n: int) -> np.ndarray:
         """The last n tokens (n, L), oldest first: the decoder's input for the frames due."""
@@ -189,11 +207,13 @@ def decode_due(decoder: Backend, makers: list[FrameMaker], n: int) -> np.ndarray
     """The features of the `n` tokens due (FrameMaker.due) of each of `makers`, in one decoder call: (B, n *
     downsample, D). From each maker's decoder state, which moves on (decoder_step), else from its window."""
     tokens = np.stack([m.window(n) for m in makers])
-    if makers[0].state is None:
+    if makers[0]._state is None:
         return decoder.decode(tokens)
-    features, state = decoder.decode_step(tokens, [np.stack(s) for s in zip(*(m.state for m in makers))])
-    for b, m in enumerate(makers):
-        m.state = [s[b] for s in state]
+    rows, ends = np.stack([m._state for m in makers]), np.cumsum([r * c for r, c in makers[0]._shapes]).tolist()
+    features, state = decoder.decode_step(tokens, [rows[:, a - r * c:a].reshape(-1, r, c) for (r, c), a in
+                                                   zip(makers[0]._shapes, ends)])
+    for m, row in zip(makers, np.concatenate([s.reshape(len(makers), -1) for s in state], axis=1)):
+        m._state = row
     return features
 
 

@@ -103,13 +103,14 @@ def test_a_path_overshot_past_its_end_still_steers_to_the_end():
 
 def test_paths_searched_together_give_each_its_own_future():
     """FollowPath.future_many (a crowd's paths in one search) gives each path the bits, progress and arrival its
-    own future gives it alone: paths of 2 to 400 points, searched over 1 to ~40 segments, one overshot, one arrived,
-    the character wandering off and back."""
+    own future gives it alone: paths of 2 to 400 points, searched over 1 to ~80 segments, one overshot, one arrived,
+    one so fast that its wanted points lie past the segments searched, the character wandering off and back."""
     rng = np.random.default_rng(5)
     points = [[(0, 0), (0, 2)], [(0, 0), (0, 4), (4, 4)], np.cumsum(rng.normal(0, 0.1, (400, 2)), axis=0),
-              np.cumsum(rng.normal(0, 1.0, (30, 2)), axis=0), [(0, 0), (0.2, 0.1)]]
-    alone = [FollowPath(p, speed=1.0 + i) for i, p in enumerate(points)]
-    together = [FollowPath(p, speed=1.0 + i) for i, p in enumerate(points)]
+              np.cumsum(rng.normal(0, 1.0, (30, 2)), axis=0), [(0, 0), (0.2, 0.1)], np.full((400, 2), 0.035).cumsum(0)]
+    speeds = [1.0, 2.0, 3.0, 4.0, 5.0, 9.0]
+    alone = [FollowPath(p, speed=v) for p, v in zip(points, speeds)]
+    together = [FollowPath(p, speed=v) for p, v in zip(points, speeds)]
     for step in range(40):
         now = np.stack([np.array([*(p.points[min(step, len(p.points) - 1)] + rng.normal(0, 0.4, 2)),
                                   rng.uniform(-3, 3)]) for p in alone])
@@ -380,6 +381,41 @@ def test_a_frame_shown_after_the_next_plan_keeps_its_own_ease():
     warp.plan(4, 4, warp.pose(np.zeros(3), 4), 0.0, np.array([0.0, 0.04]))   # planned before frames 0-3 are shown
     assert np.array_equal(warp.joints(0, body), before)
     assert np.allclose(before[:, 0, 0], [0.005, 0.01, 0.015, 0.02])    # half of 4 cm, eased over 4 frames
+
+
+def test_a_crowd_s_warps_and_poses_are_the_ones_read_one_by_one():
+    """RootWarp.warps_many and poses_many (a crowd's, on lanes of numpy) give the bits that `_warp` and `pose` give on
+    Python floats (a lone stream's pose, each plan's start): frames in the newest ease, across older ones, before the
+    first correction and older than every ease kept."""
+    from mogo_runtime.control.warp import RootWarp
+
+    rng = np.random.default_rng(7)
+    warps = [RootWarp() for _ in range(4)]
+    for token in range(8):
+        for k, w in enumerate(warps):
+            if k and token % k == 0:                     # warp 0 is never planned
+                w.plan(4 * token + 4, 4, rng.normal(0, 1, 2), rng.normal(0, 0.3), rng.normal(0, 0.05, 2))
+    frames = [range(0, 40), range(0, 40), range(20, 26), range(35, 36)]   # warp 1 kept its last 3 eases only
+    got = RootWarp.warps_many(warps, frames)
+    assert got.tobytes() == np.array([w._warp(f) for w, r in zip(warps, frames) for f in r]).tobytes()
+    assert len({tuple(row) for row in got[40:80]}) > 8        # the eases turn and shift it
+    model, at = rng.normal(0, 2, (4, 3)), [3, 10, 27, 36]
+    want = np.stack([w.pose(m, i) for w, m, i in zip(warps, model, at)])
+    assert RootWarp.poses_many(warps, model, at).tobytes() == want.tobytes()
+    assert np.array_equal(want[0], model[0]) and not np.array_equal(want[1], model[1])
+
+
+def test_a_path_s_bisection_from_a_hint_is_the_bisection():
+    from bisect import bisect_right
+
+    from mogo_runtime.control.targets import _bisect
+
+    rng = np.random.default_rng(8)
+    for n in (1, 2, 5, 40):
+        ordered = np.sort(rng.uniform(0, 10, n)).tolist()
+        for value in [*rng.uniform(-1, 11, 30).tolist(), *ordered]:
+            for hint in range(n + 1):
+                assert _bisect(ordered, value, hint) == bisect_right(ordered, value), (n, value, hint)
 
 
 def test_a_crowd_s_warps_give_each_stream_its_own_frames():

@@ -191,3 +191,40 @@ def test_bad_sampling_options_are_refused():
     assert type(s.temperature) is float and type(s.top_p) is float
     with pytest.raises(ValueError, match="seeds"):
         rngs_for([1, 2], 3)
+
+
+class StateDecoder:
+    """A decoder_step stand-in whose state counts what it has seen: state i += (i + 1) * the tokens' sum."""
+
+    dims = DIMS
+
+    def decode_step(self, tokens, state):
+        seen = tokens.sum(axis=(1, 2)).astype(np.float32)[:, None, None]
+        features = np.repeat(seen[:, :, :1], tokens.shape[1] * DIMS.downsample, axis=1) * np.ones(DIMS.feature_dim)
+        return features.astype(np.float32), [s + (i + 1) * seen for i, s in enumerate(state)]
+
+
+def test_a_decoder_state_is_each_stream_s_own_alone_or_batched():
+    from mogo_runtime.decoding import decode_due
+
+    shapes = ((2, 3), (1, 3))
+    alone, together = ([FrameMaker(DIMS, HUMANML3D, 1, shapes) for _ in range(3)] for _ in range(2))
+    rng = np.random.default_rng(6)
+    for _ in range(4):
+        picked = rng.integers(0, DIMS.codebook_size, (3, DIMS.num_levels))
+        for makers in (alone, together):
+            for m, p in zip(makers, picked):
+                m.push(p)
+        batched = decode_due(StateDecoder(), together, 1)
+        for b, m in enumerate(alone):
+            assert np.array_equal(decode_due(StateDecoder(), [m], 1)[0], batched[b])
+            m.pending = together[b].pending = 0
+    for a, t in zip(alone, together):
+        assert [s.tobytes() for s in a.state] == [s.tobytes() for s in t.state]
+        assert [s.shape for s in t.state] == list(shapes) and t.state[1][0, 0] == 2 * t.state[0][0, 0] > 0
+    maker = together[0]
+    maker.state = [np.ones((2, 3)), np.full(3, 2.0)]            # any arrays of each state's size, as a SYNC has them
+    assert maker.state[0].tolist() == [[1.0] * 3] * 2 and maker.state[1].dtype == np.float32
+    with pytest.raises(ValueError, match=r"2 arrays of \[6, 3\] values, got \[6, 4\]"):
+        maker.state = [np.ones(6), np.ones(4)]
+    assert FrameMaker(DIMS, HUMANML3D, 1).state is None

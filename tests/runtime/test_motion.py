@@ -67,6 +67,8 @@ def test_many_streams_at_once_get_the_joints_each_gets_alone(humanml3d_fixture):
             assert got[b].dtype == want.dtype and np.array_equal(got[b], want), (step, b)
     for a, t in zip(alone, together):
         assert np.array_equal(a.next_pose(), t.next_pose())
+    # a crowd reads its steered characters' next poses at once: the bits each reads alone (numpy scalars)
+    assert FrameJoints.next_poses(together).tobytes() == np.stack([a.next_pose() for a in alone]).tobytes()
 
 
 def test_integrator_rejects_wrong_width():

@@ -121,4 +121,4 @@ def test_a_stream_s_feet_are_the_same_alone_and_in_a_crowd():
         np.testing.assert_array_equal(got, want)
         assert [p.state() for p in together] == [p.state() for p in alone]
         a = b
-    assert any(p.pins[0] for p in alone) and not np.array_equal(want, joints[:, a - 20:a])   # it planted feet
+    assert any(p.pinned[0] for p in alone) and not np.array_equal(want, joints[:, a - 20:a])   # it planted feet

@@ -54,8 +54,10 @@ class FootPlant:
         # the legs' joints, and each leg as positions among them: only those rows are read and written
         self._joints = sorted({j for leg in legs for j in leg})
         self._legs = [tuple(self._joints.index(j) for j in leg) for leg in legs]
-        self.pins: list[tuple[float, float] | None] = [None] * len(legs)     # a planted toe's (x, z)
-        self.offsets: list[tuple[float, float]] = [(0.0, 0.0)] * len(legs)  # the foot's shift on the last frame
+        # each leg's state: whether its toe is planted, and [pin x, z (0 unplanted), the foot's shift x, z on the
+        # last frame] one leg after another (a crowd gathers its streams' with one conversion)
+        self.pinned: list[bool] = [False] * len(legs)
+        self.values: list[float] = [0.0] * (4 * len(legs))
 
     def apply(self, joints: np.ndarray, moved) -> np.ndarray:
         """Frames (n, J, 3) float32, in order after the last ones applied -> the same with planted feet. `moved`:
@@ -63,17 +65,19 @@ class FootPlant:
         and an offset left from before fades as a lifted foot's does (a stream never steered: its frames as they
         are)."""
         moved = [moved] * len(joints) if isinstance(moved, bool) else list(moved)
-        if not any(moved) and not any(self.pins) and not any(dx or dz for dx, dz in self.offsets):
+        v = self.values
+        if not any(moved) and not any(self.pinned) and not any(v[2::4]) and not any(v[3::4]):
             return joints
         out = joints.copy()
         frames = out[:, self._joints].tolist()      # float64 values of the float32 joints
         for rows, m in zip(frames, moved):
             for i, leg in enumerate(self._legs):
-                pin = self.pins[i]
                 hip, knee, ankle = rows[leg[0]], rows[leg[1]], rows[leg[2]]
                 dx, dz, shifted, bones, down, pin, offset = _plant(_FLOATS, hip, knee, ankle, rows[leg[-1]], m,
-                                                                   pin is not None, pin or (0.0, 0.0), self.offsets[i])
-                self.pins[i], self.offsets[i] = pin if down else None, offset
+                                                                   self.pinned[i], v[4 * i:4 * i + 2],
+                                                                   v[4 * i + 2:4 * i + 4])
+                self.pinned[i] = down
+                v[4 * i:4 * i + 4] = (*pin, *offset) if down else (0.0, 0.0, *offset)
                 if shifted:
                     for j in leg[2:]:           # the foot, ankle to toe
                         rows[j][0] += dx
@@ -95,9 +99,9 @@ class FootPlant:
             raise ValueError("apply_many plants the feet of streams of one skeleton")
         L, K = len(legs), len(legs[0])
         # lane b * L + i: leg i of stream b
-        pinned = np.array([pin is not None for p in plants for pin in p.pins])
-        pins = np.array([pin or (0.0, 0.0) for p in plants for pin in p.pins], np.float64).reshape(B * L, 2).T
-        offsets = np.array([o for p in plants for o in p.offsets], np.float64).reshape(B * L, 2).T
+        pinned = np.array([p.pinned for p in plants]).reshape(B * L)
+        values = np.array([p.values for p in plants], np.float64).reshape(B * L, 4).T
+        pins, offsets = values[:2], values[2:]
         moved = np.repeat(np.asarray(moved, bool), L, axis=0)                       # (B * L, n)
         if not moved.any() and not pinned.any() and not offsets.any():
             return joints
@@ -112,28 +116,22 @@ class FootPlant:
             leg[2:, 0] = np.where(shifted, leg[2:, 0] + dx, leg[2:, 0])          # the foot, ankle to toe
             leg[2:, 2] = np.where(shifted, leg[2:, 2] + dz, leg[2:, 2])
             leg[1] = np.where(shifted, np.stack(_knee(_LANES, leg[0], leg[1], leg[2], *bones)), leg[1])
-        pins, offsets = np.stack(pins), np.stack(offsets)
         out = joints.copy()
         out[:, :, index] = x.reshape(n, K, 3, B, L).transpose(3, 0, 4, 1, 2)        # float32 again
-        for b, p in enumerate(plants):
-            lanes = slice(b * L, (b + 1) * L)
-            p.pins = [tuple(q) if on else None for q, on in zip(pins[:, lanes].T.tolist(), pinned[lanes].tolist())]
-            p.offsets = [tuple(o) for o in offsets[:, lanes].T.tolist()]
+        values = np.stack([*(np.where(pinned, q, 0.0) for q in pins), *offsets], axis=1).reshape(B, 4 * L)
+        for p, on, v in zip(plants, pinned.reshape(B, L).tolist(), values.tolist()):
+            p.pinned, p.values = on, v
         return out
 
     def state(self) -> tuple[list[bool], list[float]]:
         """(pinned per leg, [pin x, z, offset x, z] per leg): all a stream's later joints depend on."""
-        floats = []
-        for pin, offset in zip(self.pins, self.offsets):
-            floats += [*(pin or (0.0, 0.0)), *offset]
-        return [pin is not None for pin in self.pins], floats
+        return list(self.pinned), list(self.values)
 
     def load(self, pinned, floats) -> None:
         """`state()`'s values back."""
-        for i in range(len(self.legs)):
-            x, z, dx, dz = (float(v) for v in floats[4 * i:4 * i + 4])
-            self.pins[i] = (x, z) if pinned[i] else None
-            self.offsets[i] = (dx, dz)
+        self.pinned = [bool(on) for on in pinned[:len(self.legs)]]
+        self.values = [float(v) if self.pinned[i // 4] or i % 4 >= 2 else 0.0        # an unplanted leg's pin: 0
+                       for i, v in enumerate(floats[:4 * len(self.legs)])]
 
 
 STATE_FLOATS = 8       # state()'s floats for two legs

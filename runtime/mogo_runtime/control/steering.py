@@ -28,12 +28,16 @@ from .warp import RootWarp, wrap
 
 
 class Steering:
-    def __init__(self, spec: ControlSpec, dims: ModelDims, context, legs: tuple[tuple[int, ...], ...]):
-        """`legs`: each leg's joints, hip to toe (plant.legs_of), to plant the feet of the frames moved."""
+    def __init__(self, spec: ControlSpec, dims: ModelDims, context, legs: tuple[tuple[int, ...], ...],
+                 lock: threading.Lock | None = None):
+        """`legs`: each leg's joints, hip to toe (plant.legs_of), to plant the feet of the frames moved. `lock`: the
+        lock a request and an update take (default its own); a crowd's characters share one, so a tick's update
+        takes one lock for all of them."""
         if spec.dim != control_dim(spec.horizon):
             raise ValueError(f"control dim {spec.dim} does not match a horizon of {spec.horizon} tokens")
         self.spec, self.fps, self.context = spec, dims.fps, context
-        self._lock = threading.Lock()     # a request from the game's thread and the stream's update never interleave
+        # a request from the game's thread and the stream's update never interleave
+        self._lock = threading.Lock() if lock is None else lock
         self.times = np.arange(1, spec.horizon + 1) * dims.downsample / dims.fps    # seconds ahead
         self.downsample = dims.downsample
         self.warp = RootWarp(legs)
@@ -73,11 +77,13 @@ class Steering:
         """`update` for many streams at once (a crowd's), the same numbers: `model_pose` (B, 3) the next frame's pose
         of each stream's motion (FrameJoints.next_pose); their control vectors encoded together."""
         with ExitStack() as held:
-            for s in steerings:        # a request (one lock) waits for the whole update, as it waits for one
-                held.enter_context(s._lock)
+            for lock in {id(s._lock): s._lock for s in steerings}.values():   # a request waits for the whole update
+                held.enter_context(lock)
+            # a lone stream's pose on Python floats (numpy's cost per call is ~5x the arithmetic of one pose)
+            poses = steerings[0].warp.pose(model_pose[0], index[0])[None] if len(steerings) == 1 else \
+                RootWarp.poses_many([s.warp for s in steerings], model_pose, index)
             steered = []
-            for s, i, model in zip(steerings, index, model_pose):
-                pose = s.warp.pose(model, i)
+            for s, i, pose in zip(steerings, index, poses):
                 if s.game_owns_root:
                     pose[:2] = s.target.at(i)[:2]
                 s.pose, s.frame = pose, i
@@ -99,12 +105,13 @@ class Steering:
                 for b, s in enumerate(steered):
                     if not isinstance(s.target, FollowPath):
                         wanted[b] = s._wanted()
-            for s, future, vector in zip(steered, wanted, encode_many(poses, wanted)):
+            turns = (wanted[:, 0, 2] - poses[:, 2]).tolist()
+            for s, (x, z, _), turn, vector in zip(steered, poses.tolist(), turns, encode_many(poses, wanted)):
                 s.context.steer(vector)
                 if not isinstance(s.target, GameRoot):      # the next token's correction, toward where it should be
                     reference = s.target.reference()
-                    s.warp.plan(s.frame, s.downsample, s.pose, wrap(float(future[0, 2] - s.pose[2])),
-                                (0.0, 0.0) if reference is None else reference - s.pose[:2])
+                    s.warp.plan(s.frame, s.downsample, (x, z), wrap(turn),
+                                (0.0, 0.0) if reference is None else (reference[0] - x, reference[1] - z))
 
     def place(self, index: int, joints: np.ndarray) -> np.ndarray:
         """Frames (n, J, 3) numbered index.. as shown: on the game's capsule when the game owns the root (the

@@ -73,10 +73,10 @@ class WalkTo:
     """Go to `goal` (x, z) at `speed`, facing it; within ARRIVE of it, stand (facing as it arrived) until given
     another request."""
 
-    def reference(self) -> np.ndarray | None:
-        """Where the root should be now, if the request says (once `future` has read the root): the goal once
+    def reference(self) -> tuple[float, float] | None:
+        """Where the root should be now (x, z), if the request says (once `future` has read the root): the goal once
         reached (the character stands there: the correction holds it), else None (the goal is ahead)."""
-        return self.goal.copy() if self.arrived else None
+        return (float(self.goal[0]), float(self.goal[1])) if self.arrived else None
 
     def __init__(self, goal, speed: float = 1.3):
         self.goal, self.speed, self.arrived = _point("goal", goal), _speed(speed), False
@@ -128,14 +128,16 @@ class FollowPath:
         self._yaws = np.arctan2(self.directions[:, 0], self.directions[:, 1]).tolist()     # each segment's
         self.total = float(self.starts[-1])
         self.speed, self.progress, self.arrived = _speed(speed), 0.0, False
+        self._hints = (0, 0)      # the search's last bisections of `_starts` (the progress, and LOOKAHEAD past it)
+        # each segment's point, direction, length, start (arc length) and yaw as one row (columns X .. YAW below): a
+        # crowd's search joins the rows of every path's look-ahead, one slice a path
+        self._segments = np.column_stack([self.points[:-1], self.directions, self.lengths, self.starts[:-1],
+                                          self._yaws])
 
     def at(self, s: float) -> tuple[float, float, float]:
         """An arc length (clipped to the path) -> the point there (x, z) and the path's yaw there (the segment's
-        direction). Python floats: a token asks for a few points, where numpy's calls cost more than the arithmetic."""
-        s = min(max(s, 0.0), self.total)
-        k = min(max(bisect_right(self._starts, s) - 1, 0), len(self._yaws) - 1)
-        (px, pz), (dx, dz), along = self._points[k], self._directions[k], s - self._starts[k]
-        return px + dx * along, pz + dz * along, self._yaws[k]
+        direction)."""
+        return self._along([s])[0]
 
     def nearest(self, xz: np.ndarray) -> float:
         """Arc length of the point of the path nearest `xz`, searched from the progress so far to LOOKAHEAD on."""
@@ -143,61 +145,111 @@ class FollowPath:
 
     @staticmethod
     def nearest_many(paths: list["FollowPath"], xz: np.ndarray) -> list[float]:
-        """`nearest` for many paths at once (a crowd's), the same numbers: points (B, 2) -> B arc lengths. The
-        segments searched, path after path, are one array (elementwise arithmetic; numpy's hypot gives the same bits
-        at any array length and offset)."""
+        """`nearest` for many paths at once (a crowd's), the same numbers: points (B, 2) -> B arc lengths."""
+        return FollowPath._search(paths, xz)[0]
+
+    @staticmethod
+    def _search(paths: list["FollowPath"], xz: np.ndarray) -> tuple[list[float], np.ndarray, list[tuple[int, int]]]:
+        """-> (nearest_many's arc lengths, the segments searched (`_segments` rows of every path's, path after path),
+        each path's (first, stop) segments). The segments of every path are one array (elementwise arithmetic;
+        numpy's hypot gives the same bits at any array length and offset)."""
         spans = []
         for p in paths:
             # the segment the progress is on (the last one once the progress is the path's whole length: an overshoot)
-            first = min(max(0, bisect_right(p._starts, p.progress) - 1), len(p.lengths) - 1)
-            last = bisect_right(p._starts, p.progress + p.LOOKAHEAD)
+            p._hints = (_bisect(p._starts, p.progress, p._hints[0]),
+                        _bisect(p._starts, p.progress + p.LOOKAHEAD, p._hints[1]))
+            first, last = min(max(0, p._hints[0] - 1), len(p.lengths) - 1), p._hints[1]
             spans.append((first, min(last, len(p.lengths)) if last > first else first + 1))
         counts = [b - a for a, b in spans]
         if len(paths) == 1:
-            (first, stop), p = spans[0], paths[0]
-            points, directions, lengths = p.points[first:stop], p.directions[first:stop], p.lengths[first:stop]
-            here = xz
+            rows, here = paths[0]._segments[spans[0][0]:spans[0][1]], xz
         else:
-            points = np.concatenate([p.points[a:b] for p, (a, b) in zip(paths, spans)])
-            directions = np.concatenate([p.directions[a:b] for p, (a, b) in zip(paths, spans)])
-            lengths = np.concatenate([p.lengths[a:b] for p, (a, b) in zip(paths, spans)])
+            rows = np.concatenate([p._segments[a:b] for p, (a, b) in zip(paths, spans)])
             here = np.repeat(xz, counts, axis=0)
+        points, directions, lengths = rows[:, X:Z + 1], rows[:, DX:DZ + 1], rows[:, LENGTH]
         away = here - points
         along = np.minimum(np.maximum(away[:, 0] * directions[:, 0] + away[:, 1] * directions[:, 1], 0.0), lengths)
         foot = points + directions * along[:, None] - here
         distance = np.hypot(foot[:, 0], foot[:, 1])
         if len(paths) == 1:
-            best = [int(np.argmin(distance))]
+            best = np.argmin(distance)
         else:       # each path's segments a row, padded with +inf: argmin per row, the first nearest as its own
-            row = np.repeat(np.arange(len(paths)), counts)
-            padded = np.full((len(paths), max(counts)), np.inf)
-            padded[row, np.arange(len(row)) - np.repeat(np.cumsum(counts) - counts, counts)] = distance
-            best = np.argmin(padded, axis=1).tolist()
-        along = along.tolist()
-        out, start = [], 0
-        for p, (first, _), k, n in zip(paths, spans, best, counts):
-            out.append(float(max(p.progress, p._starts[first + k] + along[start + k])))
-            start += n
-        return out
+            best = np.argmin(_rows_of(distance, counts, np.inf), axis=1) + (np.cumsum(counts) - counts)
+        out = [max(p.progress, arc) for p, arc in zip(paths, np.atleast_1d(rows[best, START] + along[best]).tolist())]
+        return out, rows, spans
 
-    def reference(self) -> np.ndarray:
-        """Where the root should be now: the point of the path nearest it (the progress `future` found)."""
-        return np.array(self.at(self.progress)[:2])
+    def reference(self) -> tuple[float, float]:
+        """Where the root should be now (x, z): the point of the path nearest it (the progress `future` found)."""
+        return self.at(self.progress)[:2]
 
     def future(self, now: np.ndarray, times: np.ndarray) -> np.ndarray:
         return FollowPath.future_many([self], np.asarray(now)[None], times)[0]
 
     @staticmethod
     def future_many(paths: list["FollowPath"], now: np.ndarray, times: np.ndarray) -> np.ndarray:
-        """`future` for many paths at once (a crowd's), the same numbers: poses now (B, 3) -> (B, horizon, 3)."""
-        out = np.empty((len(paths), len(times), 3))
-        for p, here, progress, wanted in zip(paths, now, FollowPath.nearest_many(paths, now[:, :2]), out):
-            p.progress = progress
-            end = p.points[-1] - here[:2]
-            p.arrived = p.arrived or (p.total - p.progress < ARRIVE and float(np.hypot(*end)) < ARRIVE)
-            wanted[:] = _stand(here, len(times)) if p.arrived else \
-                [p.at(p.progress + p.speed * t) for t in times.tolist()]
+        """`future` for many paths at once (a crowd's), the same numbers: poses now (B, 3) -> (B, horizon, 3). The
+        wanted points of a crowd's paths are read from the segments their search joined (a path whose points lie
+        past them, and a lone path, on Python floats: `_along`)."""
+        progress, rows, spans = FollowPath._search(paths, now[:, :2])
+        B = len(paths)
+        out = np.empty((B, len(times), 3))
+        if B > 1:
+            arcs = np.array(progress)[:, None] + np.array([p.speed for p in paths])[:, None] * times
+            arcs = np.minimum(np.maximum(arcs, 0.0), np.array([p.total for p in paths])[:, None])
+            # the segment of each arc among its path's searched ones: those that start at or before it, less one
+            counts = [b - a for a, b in spans]
+            starts = _rows_of(rows[:, START], counts, np.inf)
+            k = (starts[:, None, :] <= arcs[..., None]).sum(axis=2) - 1 + (np.cumsum(counts) - counts)[:, None]
+            segment = rows[k]
+            along = arcs - segment[..., START]
+            out[..., 0] = segment[..., X] + segment[..., DX] * along
+            out[..., 1] = segment[..., Z] + segment[..., DZ] * along
+            out[..., 2] = segment[..., YAW]
+            last = arcs[:, -1].tolist()
+        for b, (p, here, arc) in enumerate(zip(paths, now, progress)):
+            p.progress = arc
+            p.arrived = p.arrived or (p.total - arc < ARRIVE and float(np.hypot(*(p.points[-1] - here[:2]))) < ARRIVE)
+            if p.arrived:
+                out[b] = here
+            elif B == 1 or spans[b][1] < len(p.lengths) and last[b] >= p._starts[spans[b][1]]:
+                out[b] = p._along([arc + p.speed * t for t in times.tolist()])
         return out
+
+    def _along(self, arcs: list[float]) -> list[tuple[float, float, float]]:
+        """`at` of each of `arcs`. Python floats: a token asks for a few points, where numpy's calls cost more than the
+        arithmetic."""
+        out, starts, last = [], self._starts, len(self._yaws) - 1
+        for s in arcs:
+            s = min(max(s, 0.0), self.total)
+            k = min(max(bisect_right(starts, s) - 1, 0), last)
+            (px, pz), (dx, dz), along = self._points[k], self._directions[k], s - starts[k]
+            out.append((px + dx * along, pz + dz * along, self._yaws[k]))
+        return out
+
+
+X, Z, DX, DZ, LENGTH, START, YAW = range(7)        # FollowPath._segments' columns
+
+
+def _bisect(ordered: list[float], value: float, hint: int) -> int:
+    """bisect_right(ordered, value), stepping on from `hint` (the answer for a value a little smaller: a path's
+    progress moves a few centimetres a token) where that is a few steps; else bisected. A bisection of a long path
+    reads points spread over memory that a crowd's step call has pushed out of the caches."""
+    n = len(ordered)
+    if 0 < hint <= n and ordered[hint - 1] <= value:
+        for k in range(hint, min(hint + 4, n)):
+            if ordered[k] > value:
+                return k
+        if hint + 4 >= n:
+            return n
+    return bisect_right(ordered, value)
+
+
+def _rows_of(values: np.ndarray, counts: list[int], fill: float) -> np.ndarray:
+    """`values` of consecutive groups of `counts` as the rows of a (groups, max count) array padded with `fill`."""
+    row = np.repeat(np.arange(len(counts)), counts)
+    out = np.full((len(counts), max(counts)), fill)
+    out[row, np.arange(len(row)) - np.repeat(np.cumsum(counts) - counts, counts)] = values
+    return out
 
 
 class Steer:

@@ -40,10 +40,18 @@ def wrap(a: float) -> float:
     return a
 
 
-def turned(a: float, x, z):
-    """(x, z) turned by a: M(a) (x, z)."""
-    c, s = math.cos(a), math.sin(a)
+def turned(a: float, x, z, xp=math):
+    """(x, z) turned by a: M(a) (x, z); `xp` math (Python floats) or numpy (arrays: a crowd's lanes, the same bits)."""
+    c, s = xp.cos(a), xp.sin(a)
     return c * x + s * z, -s * x + c * z
+
+
+def _eased(xp, phi, tx, tz, turn, sx, sz, px, pz, f):
+    """An ease's warp (phi, tx, tz) a fraction f of the way in: the one rule, on floats (`Ease.at`) or lanes
+    (`RootWarp.warps_many`)."""
+    a = turn * f
+    x, z = turned(a, tx - px, tz - pz, xp)
+    return phi + a, x + px + sx * f, z + pz + sz * f
 
 
 class Ease(NamedTuple):
@@ -63,9 +71,7 @@ class Ease(NamedTuple):
     def at(self, k: int) -> tuple[float, float, float]:
         """The warp (phi, tx, tz) k frames into the ease (k >= frames: all of it)."""
         f = min(k, self.frames) / self.frames if self.frames else 0.0
-        a = self.turn * f
-        x, z = turned(a, self.tx - self.px, self.tz - self.pz)
-        return self.phi + a, x + self.px + self.sx * f, z + self.pz + self.sz * f
+        return _eased(math, self.phi, self.tx, self.tz, self.turn, self.sx, self.sz, self.px, self.pz, f)
 
 
 PLANS_KEPT = 64    # a token-stream writer (wire/tap.py) reads the plans every token; more unread is an error there
@@ -84,11 +90,49 @@ class RootWarp:
         self.planned = 0
 
     def _warp(self, frame: int) -> tuple[float, float, float]:
+        ease = self._ease(frame)
+        if ease is None:
+            first = self.eases[0]
+            return first.phi, first.tx, first.tz      # older than every ease kept: a frame shown that late
+        return ease.at(frame - ease.start + 1)
+
+    def _ease(self, frame: int) -> Ease | None:
+        """The ease `frame` is in (its warp: `.at(frame - .start + 1)`); None: older than every ease kept."""
         for ease in reversed(self.eases):
             if frame >= ease.start:
-                return ease.at(frame - ease.start + 1)
-        first = self.eases[0]
-        return first.phi, first.tx, first.tz      # older than every ease kept: a frame shown that late
+                return ease
+        return None
+
+    @staticmethod
+    def warps_many(warps: list["RootWarp"], frames: list[range]) -> np.ndarray:
+        """The warp (phi, tx, tz) of the frames frames[b] (consecutive) of warps[b], for many at once (a crowd's):
+        (frames in all, 3) float64, the same numbers as `_warp` one by one (the ease's rule on lanes)."""
+        eases, first, counts, late = [], [], [], []
+        for w, numbers in zip(warps, frames):
+            newest = w.eases[-1]
+            if numbers and numbers[0] >= newest.start:      # the common case: every frame in the newest ease
+                eases.append(newest)
+                first.append(numbers[0] - newest.start + 1)
+                counts.append(len(numbers))
+                continue
+            for frame in numbers:
+                ease = w._ease(frame)
+                if ease is None:
+                    late.append((sum(counts), w.eases[0]))
+                    ease = w.eases[0]
+                eases.append(ease)
+                first.append(frame - ease.start + 1)
+                counts.append(1)
+        e = np.repeat(np.array(eases, np.float64).reshape(-1, len(Ease._fields)), counts, axis=0).T
+        # k: each frame's place in its ease, first[i], first[i] + 1, ... for each run of frames
+        k = np.arange(len(e[0]), dtype=np.float64) + np.repeat(np.array(first) - (np.cumsum(counts) - counts),
+                                                                 counts)
+        n = e[9]
+        f = np.where(n > 0, np.minimum(k, n) / np.where(n > 0, n, 1.0), 0.0)
+        out = np.stack(_eased(np, *e[1:9], f), axis=1)
+        for row, oldest in late:
+            out[row] = oldest.phi, oldest.tx, oldest.tz
+        return out
 
     def pose(self, model_pose: np.ndarray, frame: int) -> np.ndarray:
         """The pose (x, z, yaw) of the model's motion at `frame` -> where it stands (the eases planned so far; a
@@ -99,6 +143,19 @@ class RootWarp:
             x, z = turned(phi, x, z)
             x, z, yaw = x + tx, z + tz, yaw + phi
         return np.array([x, z, yaw])
+
+    @staticmethod
+    def poses_many(warps: list["RootWarp"], model_poses: np.ndarray, frames: list[int]) -> np.ndarray:
+        """`pose` for many streams at once (a crowd's), the same numbers: poses (B, 3), stream b's at frame
+        frames[b] -> (B, 3) float64, where each stands."""
+        out = np.array(model_poses, np.float64)
+        active = [b for b, w in enumerate(warps) if w.active]
+        if active:
+            phi, tx, tz = RootWarp.warps_many([warps[b] for b in active], [range(frames[b], frames[b] + 1)
+                                                                           for b in active]).T
+            x, z = turned(phi, out[active, 0], out[active, 1], np)
+            out[active] = np.stack([x + tx, z + tz, out[active, 2] + phi], axis=1)
+        return out
 
     def plan(self, start: int, frames: int, pose: np.ndarray, turn: float, shift) -> None:
         """From frame `start`: ease in a turn of GAIN * `turn` rad about `pose` (x, z, where it stands) and a shift
@@ -131,7 +188,8 @@ class RootWarp:
         out = joints
         if active and n:
             # (phi, tx, tz) of each frame of each active stream
-            warp = np.array([warps[b]._warp(index[b] + i) for b in active for i in range(n)]).reshape(-1, n, 3, 1)
+            warp = RootWarp.warps_many([warps[b] for b in active],
+                                       [range(index[b], index[b] + n) for b in active]).reshape(-1, n, 3, 1)
             phi, tx, tz = warp[:, :, 0], warp[:, :, 1], warp[:, :, 2]
             c, s = np.cos(phi), np.sin(phi)
             every = len(active) == B

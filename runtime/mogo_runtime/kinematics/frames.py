@@ -23,9 +23,34 @@ class RootIntegrator:
         num_joints = skeleton.num_joints
         self.layout = FeatureLayout(num_joints)
         self.num_joints = num_joints
-        self.angle = 0.0                      # half-angle of the root's facing about y, as in the features
-        self.position = np.zeros(2)           # root x, z
-        self.previous = np.zeros(3)           # (rot_vel, vel_x, vel_z) of the last frame seen: frame 0 stays put
+        # [angle, x, z, rot_vel, vel_x, vel_z] in one row (a crowd gathers its streams' with one operation): the
+        # half-angle of the root's facing about y as in the features, the root's x and z, and the velocities of
+        # the last frame seen (`previous`: frame 0 stays put)
+        self._state = np.zeros(6)
+
+    @property
+    def angle(self) -> float:
+        return self._state[0]
+
+    @angle.setter
+    def angle(self, value: float) -> None:
+        self._state = np.concatenate([[value], self._state[1:]])
+
+    @property
+    def position(self) -> np.ndarray:
+        return self._state[1:3]
+
+    @position.setter
+    def position(self, value) -> None:
+        self._state = np.concatenate([self._state[:1], np.asarray(value, np.float64).reshape(2), self._state[3:]])
+
+    @property
+    def previous(self) -> np.ndarray:
+        return self._state[3:6]
+
+    @previous.setter
+    def previous(self, value) -> None:
+        self._state = np.concatenate([self._state[:3], np.asarray(value, np.float64).reshape(3)])
 
     def push(self, features: np.ndarray) -> np.ndarray:
         """features (n, D) of the next n frames -> joints (n, J, 3), in the features' float dtype."""
@@ -45,9 +70,8 @@ class RootIntegrator:
         x64 = x.astype(np.float64)
         B, n = x64.shape[:2]
         J = roots[0].num_joints
-        angle = np.array([r.angle for r in roots], np.float64)
-        position = np.stack([r.position for r in roots])                  # (B, 2)
-        previous = np.stack([r.previous for r in roots])                  # (B, 3): the frame before each
+        state = np.stack([r._state for r in roots])
+        angle, position, previous = state[:, 0], state[:, 1:3], state[:, 3:6]   # previous: the frame before each
         velocity = np.concatenate([previous[:, None], x64[:, :-1, :3]], axis=1)    # (B, n, 3) moving frame i
         # running sums over the frames: cumsum adds in order, as a frame-by-frame loop would
         angles = np.cumsum(np.concatenate([angle[:, None], velocity[..., 0]], axis=1), axis=1)[:, 1:]   # (B, n)
@@ -66,19 +90,23 @@ class RootIntegrator:
         joints[:, :, 1:, 0] = c2 * ric[..., 0] - s2 * ric[..., 2] + pos[..., :1]
         joints[:, :, 1:, 1] = ric[..., 1]
         joints[:, :, 1:, 2] = s2 * ric[..., 0] + c2 * ric[..., 2] + pos[..., 1:]
-        for b, r in enumerate(roots):
-            if n:
-                r.angle, r.position, r.previous = angles[b, -1], pos[b, -1].copy(), x64[b, -1, :3].copy()
+        if n:
+            for r, row in zip(roots, np.concatenate([angles[:, -1:], pos[:, -1], x64[:, -1, :3]], axis=1)):
+                r._state = row
         return joints.astype(out_dtype)
 
     def next_pose(self) -> np.ndarray:
         """The root pose (x, z, yaw) of the next frame, which the frames so far fix (yaw as control/vector.py has
         it: the root faces (sin yaw, cos yaw))."""
-        rot_vel, vx, vz = self.previous
-        angle = self.angle + rot_vel
-        cos2, sin2 = np.cos(2 * angle), np.sin(2 * angle)
-        x, z = self.position + (cos2 * vx - sin2 * vz, sin2 * vx + cos2 * vz)
-        return np.array([x, z, -2.0 * angle])
+        return np.array(_next_pose(*self._state))
+
+
+def _next_pose(angle, x, z, rot_vel, vx, vz):
+    """The next frame's root pose (x, z, yaw) from a RootIntegrator's state, of one stream (numpy scalars) or of many
+    (arrays): the same numbers."""
+    angle = angle + rot_vel
+    cos2, sin2 = np.cos(2 * angle), np.sin(2 * angle)
+    return x + (cos2 * vx - sin2 * vz), z + (sin2 * vx + cos2 * vz), -2.0 * angle
 
 
 class FootLock:
@@ -107,8 +135,30 @@ class FootLock:
         self.toes = [skeleton.foot_left[1], skeleton.foot_right[1]]    # the joints of the toe contact channels
         start = FeatureLayout(skeleton.num_joints).foot_contact.start
         self.channels = [start + 1, start + 3]          # left toe, right toe
-        self.offset = np.zeros(2)                       # x, z
-        self.previous: tuple[np.ndarray, np.ndarray] | None = None   # last frame's toe (x, z) and contact
+        # [offset x, z, whether a frame was seen, its toes' (x, z) twice, their contacts (1.0 or 0.0)] in one row
+        # (a crowd gathers its streams' with one operation)
+        self._state = np.zeros(9)
+
+    @property
+    def offset(self) -> np.ndarray:
+        """The body's running (x, z) offset."""
+        return self._state[:2]
+
+    @offset.setter
+    def offset(self, value) -> None:
+        self._state = np.concatenate([np.asarray(value, np.float64).reshape(2), self._state[2:]])
+
+    @property
+    def previous(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The last frame's toes (2, 2: (x, z) each) and their contacts (2,) bool; None before the first frame."""
+        if not self._state[2]:
+            return None
+        return self._state[3:7].reshape(2, 2), self._state[7:9] > 0
+
+    @previous.setter
+    def previous(self, value: tuple[np.ndarray, np.ndarray] | None) -> None:
+        seen = [] if value is None else [np.asarray(value[0], np.float64).reshape(4), np.asarray(value[1], bool)]
+        self._state = np.concatenate([self._state[:2], [1.0, *seen[0], *seen[1]] if seen else np.zeros(7)])
 
     def push(self, joints: np.ndarray, features: np.ndarray) -> np.ndarray:
         """joints (n, J, 3) float32 and their features (n, D) -> the locked joints (n, J, 3) float32."""
@@ -123,17 +173,20 @@ class FootLock:
         j = np.asarray(joints, np.float64)
         toe = j[:, :, first.toes][..., [0, 2]]                                   # (B, n, 2 toes, xz)
         contact = np.asarray(features)[:, :, first.channels] > first.CONTACT     # (B, n, 2)
-        prev_toe = np.stack([k.previous[0] if k.previous is not None else toe[b, 0] for b, k in enumerate(locks)])
-        prev_contact = np.stack([k.previous[1] if k.previous is not None else np.zeros(2, bool) for k in locks])
+        state = np.stack([k._state for k in locks])
+        seen = state[:, 2] > 0                                                  # a stream's first frame: no slide
+        prev_toe = np.where(seen[:, None, None], state[:, 3:7].reshape(-1, 2, 2), toe[:, 0])
+        prev_contact = seen[:, None] & (state[:, 7:9] > 0)
         slide = np.diff(np.concatenate([prev_toe[:, None], toe], axis=1), axis=1)    # (B, n, 2, 2)
         held = np.concatenate([prev_contact[:, None], contact], axis=1)[:, :-1] & contact   # (B, n, 2)
         count = held.sum(2, keepdims=True)
         shift = np.where(count > 0, (slide * held[..., None]).sum(2) / np.maximum(count, 1), 0.0)   # (B, n, 2)
         # a running subtraction from the carried offset (cumsum is sequential), so chunking changes nothing
-        offset = np.stack([k.offset for k in locks])
-        offsets = np.cumsum(np.concatenate([offset[:, None], -shift], axis=1), axis=1)[:, 1:]
-        for b, k in enumerate(locks):
-            k.offset, k.previous = offsets[b, -1].copy(), (toe[b, -1].copy(), contact[b, -1].copy())
+        offsets = np.cumsum(np.concatenate([state[:, None, :2], -shift], axis=1), axis=1)[:, 1:]
+        B = len(locks)
+        for k, row in zip(locks, np.concatenate([offsets[:, -1], np.ones((B, 1)), toe[:, -1].reshape(B, 4),
+                                                 contact[:, -1]], axis=1)):
+            k._state = row
         j[..., 0] += offsets[..., None, 0]
         j[..., 2] += offsets[..., None, 1]
         return j.astype(np.float32)
@@ -162,3 +215,10 @@ class FrameJoints:
         pose = self.root.next_pose()
         pose[:2] += self.lock.offset
         return pose
+
+    @staticmethod
+    def next_poses(streams: list["FrameJoints"]) -> np.ndarray:
+        """`next_pose` of many streams at once (a crowd's), the same numbers: (B, 3)."""
+        x, z, yaw = _next_pose(*np.stack([s.root._state for s in streams]).T)
+        offset = np.stack([s.lock._state[:2] for s in streams])
+        return np.stack([x + offset[:, 0], z + offset[:, 1], yaw], axis=1)

@@ -163,7 +163,6 @@ class MotionClient:
         maker.count, maker.pending, maker.frames = sync.seq, sync.pending, (sync.seq - sync.pending) * d.downsample
         if maker.state is not None:
             maker.state = np.split(sync.decoder_state, np.cumsum([a * b for a, b in shapes])[:-1])
-            maker.state = [s.reshape(shape).copy() for s, shape in zip(maker.state, shapes)]
         root, lock = maker.joints.root, maker.joints.lock
         root.angle, root.position, root.previous = float(sync.root[0]), sync.root[1:3].copy(), sync.root[3:6].copy()
         lock.offset = sync.root[6:8].copy()
