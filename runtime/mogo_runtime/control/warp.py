@@ -107,6 +107,8 @@ class RootWarp:
     def warps_many(warps: list["RootWarp"], frames: list[range]) -> np.ndarray:
         """The warp (phi, tx, tz) of the frames frames[b] (consecutive) of warps[b], for many at once (a crowd's):
         (frames in all, 3) float64, the same numbers as `_warp` one by one (the ease's rule on lanes)."""
+        if len(warps) == 1:     # a lone stream: Python floats (numpy's calls cost more than a few frames' arithmetic)
+            return np.array([warps[0]._warp(f) for f in frames[0]]).reshape(-1, 3)
         eases, first, counts, late = [], [], [], []
         for w, numbers in zip(warps, frames):
             newest = w.eases[-1]
