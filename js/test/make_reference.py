@@ -121,7 +121,7 @@ def control_unit_cases(rng) -> dict:
         for now in nows:                     # the wanted poses, then where the correction steers to (or None)
             out.append(target.future(now, np.array(times), *extra).tolist())
             reference = target.reference()
-            references.append(None if reference is None else reference.tolist())
+            references.append(None if reference is None else list(reference))
         requests.append({"kind": make.__name__, "args": args, "nows": nows.tolist(), "futures": out,
                          "references": references,
                          "arrived": target.arrived, **({"progress": target.progress} if hasattr(target, "progress") else {})})

@@ -133,10 +133,11 @@ class FrameMaker:
     def __init__(self, dims: ModelDims, skeleton: Skeleton, chunk: int = 1,
                  decoder_state: tuple[tuple[int, int], ...] | None = None):
         self.dims, self.chunk = dims, check_chunk(chunk)
-        # the decoder_step graph's state, zeros at a motion's start (the left padding of a whole-motion decode): its
-        # arrays one after another in one row, so a crowd gathers and hands back each stream's with one operation
+        # the decoder_step graph's state, zeros at a motion's start (the left padding of a whole-motion decode), as
+        # (arrays, row): row `row` of the state arrays of a decode of many streams (its outputs, kept as they are: a
+        # crowd that decodes the same streams in the same order next passes them back without a copy)
         self._shapes = decoder_state
-        self._state = None if decoder_state is None else np.zeros(sum(r * c for r, c in decoder_state), np.float32)
+        self._state = None if decoder_state is None else ([np.zeros((1, *s), np.float32) for s in decoder_state], 0)
         self.tokens = np.zeros((dims.receptive_field + self.chunk, dims.num_levels), np.int64)
         self.count = 0      # tokens pushed
         self.pending = 0    # tokens pushed whose frames were not made yet
@@ -148,8 +149,8 @@ class FrameMaker:
         """The decoder_step graph's state (one array per state input, [reach, channels]), or None without one."""
         if self._state is None:
             return None
-        return [self._state[a - r * c:a].reshape(r, c) for (r, c), a in
-                zip(self._shapes, np.cumsum([r * c for r, c in self._shapes]).tolist())]
+        arrays, row = self._state
+        return [a[row] for a in arrays]
 
     @state.setter
     def state(self, arrays: list[np.ndarray]) -> None:
@@ -157,7 +158,7 @@ class FrameMaker:
         if self._state is None or [np.size(a) for a in arrays] != sizes:
             raise ValueError(f"a decoder state of {len(sizes)} arrays of {sizes} values, got "
                              f"{[np.size(a) for a in arrays]}")
-        self._state = np.concatenate([np.asarray(a, np.float32).ravel() for a in arrays])
+        self._state = ([np.asarray(a, np.float32).reshape(1, *s).copy() for a, s in zip(arrays, self._shapes)], 0)
 
     def push(self, picked: np.ndarray) -> int:
         """The stream's next token (L,) -> how many tokens to decode now (`due`)."""
@@ -209,11 +210,14 @@ def decode_due(decoder: Backend, makers: list[FrameMaker], n: int) -> np.ndarray
     tokens = np.stack([m.window(n) for m in makers])
     if makers[0]._state is None:
         return decoder.decode(tokens)
-    rows, ends = np.stack([m._state for m in makers]), np.cumsum([r * c for r, c in makers[0]._shapes]).tolist()
-    features, state = decoder.decode_step(tokens, [rows[:, a - r * c:a].reshape(-1, r, c) for (r, c), a in
-                                                   zip(makers[0]._shapes, ends)])
-    for m, row in zip(makers, np.concatenate([s.reshape(len(makers), -1) for s in state], axis=1)):
-        m._state = row
+    last = makers[0]._state[0]
+    if len(last[0]) == len(makers) and all(m._state[0] is last and m._state[1] == b for b, m in enumerate(makers)):
+        state = last        # the streams of the last call, in its order: its outputs are the inputs
+    else:
+        state = [np.stack([m._state[0][i][m._state[1]] for m in makers]) for i in range(len(last))]
+    features, state = decoder.decode_step(tokens, state)
+    for b, m in enumerate(makers):
+        m._state = (state, b)
     return features
 
 
