@@ -102,9 +102,10 @@ def test_a_path_overshot_past_its_end_still_steers_to_the_end():
 
 
 def test_paths_searched_together_give_each_its_own_future():
-    """FollowPath.future_many (a crowd's paths in one search) gives each path the bits, progress and arrival its
-    own future gives it alone: paths of 2 to 400 points, searched over 1 to ~80 segments, one overshot, one arrived,
-    one so fast that its wanted points lie past the segments searched, the character wandering off and back."""
+    """FollowPath.future_many (a crowd's paths in one search) gives each path the bits, progress, arrival and
+    reference its own future gives it alone: paths of 2 to 400 points, searched over 1 to ~80 segments, one overshot,
+    one arrived, one so fast that its wanted points lie past the segments searched, the character wandering off and
+    back."""
     rng = np.random.default_rng(5)
     points = [[(0, 0), (0, 2)], [(0, 0), (0, 4), (4, 4)], np.cumsum(rng.normal(0, 0.1, (400, 2)), axis=0),
               np.cumsum(rng.normal(0, 1.0, (30, 2)), axis=0), [(0, 0), (0.2, 0.1)], np.full((400, 2), 0.035).cumsum(0)]
@@ -118,6 +119,7 @@ def test_paths_searched_together_give_each_its_own_future():
         got = FollowPath.future_many(together, now, TIMES)
         assert got.tobytes() == want.tobytes()
         assert [(p.progress, p.arrived) for p in together] == [(p.progress, p.arrived) for p in alone]
+        assert [p.reference() for p in together] == [p.reference() for p in alone]      # read with the wanted points
     assert alone[0].progress == alone[0].total and alone[4].arrived and not alone[2].arrived
 
 

@@ -129,6 +129,7 @@ class FollowPath:
         self.total = float(self.starts[-1])
         self.speed, self.progress, self.arrived = _speed(speed), 0.0, False
         self._hints = (0, 0)      # the search's last bisections of `_starts` (the progress, and LOOKAHEAD past it)
+        self._reference: tuple[float, tuple[float, float] | None] = (-1.0, None)   # a progress and its point
         # each segment's point, direction, length, start (arc length) and yaw as one row (columns X .. YAW below): a
         # crowd's search joins the rows of every path's look-ahead, one slice a path
         self._segments = np.column_stack([self.points[:-1], self.directions, self.lengths, self.starts[:-1],
@@ -180,7 +181,8 @@ class FollowPath:
 
     def reference(self) -> tuple[float, float]:
         """Where the root should be now (x, z): the point of the path nearest it (the progress `future` found)."""
-        return self.at(self.progress)[:2]
+        progress, point = self._reference
+        return point if progress == self.progress else self.at(self.progress)[:2]
 
     def future(self, now: np.ndarray, times: np.ndarray) -> np.ndarray:
         return FollowPath.future_many([self], np.asarray(now)[None], times)[0]
@@ -193,8 +195,9 @@ class FollowPath:
         progress, rows, spans = FollowPath._search(paths, now[:, :2])
         B = len(paths)
         out = np.empty((B, len(times), 3))
-        if B > 1:
-            arcs = np.array(progress)[:, None] + np.array([p.speed for p in paths])[:, None] * times
+        if B > 1:       # the point at the progress (t = 0: `reference`'s), then the wanted ones
+            arcs = np.array(progress)[:, None] + np.array([p.speed for p in paths])[:, None] * \
+                np.concatenate([[0.0], times])
             arcs = np.minimum(np.maximum(arcs, 0.0), np.array([p.total for p in paths])[:, None])
             # the segment of each arc among its path's searched ones: those that start at or before it, less one
             counts = [b - a for a, b in spans]
@@ -202,16 +205,18 @@ class FollowPath:
             k = (starts[:, None, :] <= arcs[..., None]).sum(axis=2) - 1 + (np.cumsum(counts) - counts)[:, None]
             segment = rows[k]
             along = arcs - segment[..., START]
-            out[..., 0] = segment[..., X] + segment[..., DX] * along
-            out[..., 1] = segment[..., Z] + segment[..., DZ] * along
-            out[..., 2] = segment[..., YAW]
-            last = arcs[:, -1].tolist()
+            x, z = segment[..., X] + segment[..., DX] * along, segment[..., Z] + segment[..., DZ] * along
+            out[..., 0], out[..., 1], out[..., 2] = x[:, 1:], z[:, 1:], segment[:, 1:, YAW]
+            last, nearest = arcs[:, -1].tolist(), np.stack([x[:, 0], z[:, 0]], axis=1).tolist()
         for b, (p, here, arc) in enumerate(zip(paths, now, progress)):
             p.progress = arc
             p.arrived = p.arrived or (p.total - arc < ARRIVE and float(np.hypot(*(p.points[-1] - here[:2]))) < ARRIVE)
+            joined = B > 1 and (spans[b][1] == len(p.lengths) or last[b] < p._starts[spans[b][1]])
+            if joined:
+                p._reference = arc, tuple(nearest[b])
             if p.arrived:
                 out[b] = here
-            elif B == 1 or spans[b][1] < len(p.lengths) and last[b] >= p._starts[spans[b][1]]:
+            elif not joined:
                 out[b] = p._along([arc + p.speed * t for t in times.tolist()])
         return out
 
