@@ -164,8 +164,8 @@ def _plant(xp, hip, knee, ankle, toe, moved, pinned, pin, offset):
     # touched down: the pin is where the toe shows now, with the offset it has; lifted, the offset fades
     px, pz = where(pinned, pin[0], tx + offset[0]), where(pinned, pin[1], tz + offset[1])
     dx, dz = where(down, px - tx, offset[0] * RELEASE), where(down, pz - tz, offset[1] * RELEASE)
-    l1 = sqrt((kx - hx) * (kx - hx) + (ky - hy) * (ky - hy) + (kz - hz) * (kz - hz))
-    l2 = sqrt((ax - kx) * (ax - kx) + (ay - ky) * (ay - ky) + (az - kz) * (az - kz))
+    ux, uy, uz, vx, vy, vz = kx - hx, ky - hy, kz - hz, ax - kx, ay - ky, az - kz    # thigh, shin
+    l1, l2 = sqrt(ux * ux + uy * uy + uz * uz), sqrt(vx * vx + vy * vy + vz * vz)
     reach = REACH * (l1 + l2)
     bx, by, bz = ax - hx, ay - hy, az - hz
     ex, ez = bx + dx, bz + dz
