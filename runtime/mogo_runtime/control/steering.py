@@ -82,18 +82,20 @@ class Steering:
             # a lone stream's pose on Python floats (numpy's cost per call is ~5x the arithmetic of one pose)
             poses = steerings[0].warp.pose(model_pose[0], index[0])[None] if len(steerings) == 1 else \
                 RootWarp.poses_many([s.warp for s in steerings], model_pose, index)
-            steered = []
-            for s, i, pose in zip(steerings, index, poses):
+            rows = []
+            for b, (s, i, pose) in enumerate(zip(steerings, index, poses)):
                 if s.game_owns_root:
                     pose[:2] = s.target.at(i)[:2]
                 s.pose, s.frame = pose, i
                 if s.target is None:
                     s.context.steer(s.vector())
                 else:
-                    steered.append(s)
-            if not steered:
+                    rows.append(b)
+            if not rows:
                 return
-            poses = np.stack([s.pose for s in steered])
+            steered = [steerings[b] for b in rows]
+            if len(rows) < len(steerings):
+                poses = poses[rows]
             paths = [b for b, s in enumerate(steered) if isinstance(s.target, FollowPath)]
             if len(paths) == len(steered):      # the most common request, searched for all at once
                 wanted = FollowPath.future_many([s.target for s in steered], poses, steered[0].times)
