@@ -70,6 +70,10 @@ class Distill:
     windows: int = 8       # streaming windows per step (on data with timelines)
     uncond_weight: float = 1.0   # the unconditional row held at the teacher's (KL weight), so guidance still works
     bf16: bool = False     # forward passes in bfloat16 autocast where the device computes bf16 natively (distill.py)
+    # a model with control: the share of samples shown their own future root, and the guidance toward it their
+    # target adds (1: the teacher's own use of the control), so the one row also obeys the control more
+    control_share: float = 0.5
+    control_guidance: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -131,7 +135,8 @@ TINY = Preset(
     text_encoder="tiny-random-bert",
     trains_on_cpu=True,
     streaming=Streaming(window=5, refresh=3, windows=4),     # 8 = max_rel_dist
-    distill=Distill(guidance=4.0, steps=10, lr=3e-4, batch_size=8, windows=2),   # a gap the tiny model shows
+    # a gap the tiny model shows
+    distill=Distill(guidance=4.0, steps=10, lr=3e-4, batch_size=8, windows=2, control_guidance=2.0),
 )
 
 # The demo model. With these two schedules both models train in 17.9 min on the idle 2-core machine with torch's
@@ -182,7 +187,12 @@ BASE = Preset(
     # top_p 0.8, 1 seed); diversity 114.3 (data 112.7). 100 steps of clips alone: 0.824 / 0.846. ~15 min alone.
     # bf16: a step 1.71x faster on this CPU (AVX-512 BF16; 8 batches, best of 3: 21.0 -> 12.3 s), the same
     # accuracy (benchmarks/NOTES.md, "bf16 distillation")
-    distill=Distill(guidance=2.0, steps=400, lr=5e-5, batch_size=32, windows=8, bf16=True),
+    # control guidance 3 (half the samples shown their own future root): against 1, the same teacher, 3 seeds of
+    # benchmarks/control.py (benchmarks/NOTES.md, "guidance toward the control"): waypoints reached in time 0.64 ->
+    # 0.72, standing there 0.28 -> 0.40, path error p95 / max 0.32 / 1.84 -> 0.29 / 0.96 m, but path speed within
+    # 10% 7.5% -> 3.2%, jerk 1.83 -> 1.89, text of controlled streams 0.889 -> 0.870; without control the same
+    # (held-out whole clips 0.854 -> 0.849 int8, 3 seeds). 2 gave about half of each. 631 s here.
+    distill=Distill(guidance=2.0, steps=400, lr=5e-5, batch_size=32, windows=8, bf16=True, control_guidance=3.0),
 )
 
 PAPER = Preset(

@@ -1,5 +1,6 @@
 """Guidance distillation (mogo_export/distill.py): the measure is zero where there is nothing to learn, a few steps
-bring the student's conditional row toward the teacher's guided distribution while its unconditional row stays,
+bring the student's conditional row toward the teacher's guided distribution (toward the control too, where a
+sample has one) while its unconditional row stays,
 and the distilled tiny model (train_all runs the phase) ships a bundle whose default sampling runs one row."""
 import copy
 
@@ -41,6 +42,30 @@ def test_nothing_to_learn_measures_zero(tiny_checkpoints):
     assert abs(float(same)) < 1e-6 and float(guided) > 1e-4
 
 
+def _control(cfg, tokens, steered):
+    """A control for each sample of a batch: random wanted poses where `steered`, none (all zeros) elsewhere."""
+    B, S, _ = tokens.shape
+    control = torch.randn(B, S, cfg.control_dim, generator=torch.Generator().manual_seed(1))
+    control[..., 0] = 1.0                                  # present
+    return control * torch.as_tensor(steered, dtype=control.dtype)[:, None, None]
+
+
+def test_control_guidance_guides_only_the_samples_with_control(tiny_checkpoints):
+    """Guidance toward the control changes the target only where a sample has one: none anywhere measures what
+    text guidance alone does, and the teacher is its own target at both guidances 1, with control or not."""
+    _, teacher, cfg = _models(tiny_checkpoints)
+    assert cfg.control_dim
+    text, tokens, lengths = _batch(cfg)
+    none = _control(cfg, tokens, [False] * len(tokens))
+    one = _control(cfg, tokens, [True] + [False] * (len(tokens) - 1))
+    with torch.no_grad():
+        def kl(control, g, gc):
+            return float(guided_kl(copy.deepcopy(teacher), teacher, text, tokens, lengths, g, 1.0, control, gc))
+        assert abs(kl(one, 1.0, 1.0)) < 1e-6 and abs(kl(none, 1.0, 3.0)) < 1e-6
+        assert abs(kl(none, 2.0, 3.0) - kl(None, 2.0, 1.0)) < 1e-6
+        assert kl(one, 1.0, 3.0) > 1e-4
+
+
 def test_the_distilled_tiny_model_gives_more_of_the_guided_distribution(tiny_checkpoints):
     """train_all distilled the tiny model (its preset's few steps, on the training split): on the validation split's
     clips, its conditional row is closer to the teacher's guided distribution than the teacher's own conditional row
@@ -55,17 +80,21 @@ def test_the_distilled_tiny_model_gives_more_of_the_guided_distribution(tiny_che
     table, emb, _ = caption_table(data, tiny_checkpoints, payload["meta"]["text_encoder"], write=False)
     downsample = read_checkpoint(tiny_checkpoints / "vq.pt", "vq")["config"]["downsample"]
     d = load_token_data(data, tiny_checkpoints / "tokens.npz", table, emb, cfg, downsample)
+    assert payload["meta"]["distilled"]["control_guidance"] == plan.control_guidance != 1.0
     rng = np.random.default_rng(0)
-    before, after = [], []
+    measures = {"without control": ([], []), "with their own control": ([], [])}
     with torch.no_grad():
         for _ in range(4):
-            text, tokens, _, lengths = pad_examples(clip_examples(d.val_seqs, d.val_caps, emb, rng, 8, cfg,
-                                                                  controls=d.val_controls), cfg)[:4]
-            before.append(float(guided_kl(teacher, teacher, text, tokens, lengths, plan.guidance, 0.0)))
-            after.append(float(guided_kl(student, teacher, text, tokens, lengths, plan.guidance, 0.0)))
-    print(f"validation clips, KL(guided || conditional row): teacher {np.mean(before):.4f}, "
-          f"distilled {np.mean(after):.4f}")
-    assert np.mean(after) < 0.8 * np.mean(before)
+            text, tokens, _, lengths, control = pad_examples(clip_examples(d.val_seqs, d.val_caps, emb, rng, 8, cfg,
+                                                                           controls=d.val_controls), cfg)
+            for (before, after), c in zip(measures.values(), (None, control)):
+                for model, out in ((teacher, before), (student, after)):
+                    out.append(float(guided_kl(model, teacher, text, tokens, lengths, plan.guidance, 0.0, c,
+                                               plan.control_guidance)))
+    for name, (before, after) in measures.items():
+        print(f"validation clips {name}, KL(guided || conditional row): teacher {np.mean(before):.4f}, "
+              f"distilled {np.mean(after):.4f}")
+        assert np.mean(after) < 0.8 * np.mean(before), name
 
 
 def test_a_distilled_bundle_samples_with_one_row(tiny_bundle):
