@@ -57,17 +57,15 @@ def guided_kl(student: tmodel.RQHCTransformer, teacher: tmodel.RQHCTransformer, 
     with torch.no_grad():
         full = tmodel.at_least_float32        # bf16 logits under autocast; the distributions in float32
 
-        def text_guided(rows, ctrl):
-            """-> (the text-guided logits, the unconditional ones) of samples `rows`, reading control `ctrl`."""
-            cond = full(teacher(text[rows], tokens_in[rows], ctrl))
-            uncond = full(teacher(zero[rows], tokens_in[rows], ctrl))
+        def text_guided(t, tokens, ctrl):
+            """-> (the teacher's text-guided logits, its unconditional ones)."""
+            cond, uncond = full(teacher(t, tokens, ctrl)), full(teacher(torch.zeros_like(t), tokens, ctrl))
             return uncond + guidance * (cond - uncond), uncond
 
-        every = torch.arange(B, device=tokens_in.device)
-        guided, uncond = text_guided(every, control)
-        steered = every[control.abs().sum((1, 2)) > 0] if control is not None else every[:0]
-        if control_guidance != 1.0 and len(steered):
-            free, _ = text_guided(steered, None)
+        guided, uncond = text_guided(text, tokens_in, control)
+        steered = control.abs().sum((1, 2)) > 0 if control is not None else None
+        if control_guidance != 1.0 and steered is not None and steered.any():
+            free, _ = text_guided(text[steered], tokens_in[steered], None)
             guided[steered] = free + control_guidance * (guided[steered] - free)
         targets = [torch.log_softmax(guided, -1)]
         if uncond_weight:
