@@ -187,11 +187,11 @@ BASE = Preset(
     # top_p 0.8, 1 seed); diversity 114.3 (data 112.7). 100 steps of clips alone: 0.824 / 0.846. ~15 min alone.
     # bf16: a step 1.71x faster on this CPU (AVX-512 BF16; 8 batches, best of 3: 21.0 -> 12.3 s), the same
     # accuracy (benchmarks/NOTES.md, "bf16 distillation")
-    # control guidance 3 (half the samples shown their own future root): against 1, the same teacher, 3 seeds of
-    # benchmarks/control.py (benchmarks/NOTES.md, "guidance toward the control"): waypoints reached in time 0.64 ->
-    # 0.72, standing there 0.28 -> 0.40, path error p95 / max 0.32 / 1.84 -> 0.29 / 0.96 m, but path speed within
-    # 10% 7.5% -> 3.2%, jerk 1.83 -> 1.89, text of controlled streams 0.889 -> 0.870; without control the same
-    # (held-out whole clips 0.854 -> 0.849 int8, 3 seeds). 2 gave about half of each. 631 s here.
+    # control guidance 3 (half the samples shown their own future root): against the same teacher distilled without
+    # control, 3 seeds of benchmarks/control.py (benchmarks/NOTES.md, "guidance toward the control"): waypoints
+    # reached in time 0.64 -> 0.72, standing there 0.28 -> 0.40, path error p95 / max 0.32 / 1.84 -> 0.29 / 0.96 m,
+    # but path speed within 10% 7.5% -> 3.2%, jerk 1.83 -> 1.89, text of controlled streams 0.889 -> 0.869; without
+    # control the same (held-out whole clips 0.854 -> 0.849 int8, 3 seeds). 2 gave about half of each. 631 s here.
     distill=Distill(guidance=2.0, steps=400, lr=5e-5, batch_size=32, windows=8, bf16=True, control_guidance=3.0),
 )
 
