@@ -3,10 +3,10 @@
 
 They hold what a game's locomotion controller asks a motion model for: walks at any speed from 0.6 to
 1.8 m/s and runs from 1.8 to 4 m/s (also speeding up or slowing down), paths of every curvature and sharp
-corners, turns on the spot by any angle, starts, stops (also inside a walk or run whose caption does not
-say it stops: "pause" segments) and standing still, and moving while facing elsewhere (backward, sideways,
-diagonally). The families' clips step at three paces, turn 0 or 360 degrees on the move and 90, 180 or 360
-on the spot: a model conditioned on a future root trajectory cannot learn to follow a path from them.
+corners, turns on the spot by any angle, starts, stops and standing still, and moving while facing elsewhere
+(backward, sideways, diagonally). The families' clips step at three paces, turn 0 or 360 degrees on the move
+and 90, 180 or 360 on the spot: a model conditioned on a future root trajectory cannot learn to follow a
+path from them.
 
 The body is steered only through the heading track, the cadence and the stride: the feet are planted and
 the root follows from them (grounding.solve_ground), so a speed is asked for by choosing a cadence and the
@@ -34,19 +34,10 @@ from .sequences import _still, hold, min_spans
 PATH_SECONDS = (20.0, 60.0)
 MAX_SPAN = 199          # frames: T2M keeps items shorter than 200, so every segment still loads as one
 SEGMENT_SECONDS = 8.6   # a segment's own frames; with holds and half fades its span stays under MAX_SPAN
-# segment kinds and how often each is drawn (walks, runs and pauses also last longest: ~55% of the frames)
-KINDS = {"walk": 0.22, "run": 0.13, "pause": 0.12, "backpedal": 0.09, "sidestep": 0.09, "diagonal": 0.08,
-         "turn": 0.14, "stand": 0.13}
+# segment kinds and how often each is drawn (walks and runs also last longest: ~55% of the frames)
+KINDS = {"walk": 0.30, "run": 0.17, "backpedal": 0.09, "sidestep": 0.09, "diagonal": 0.08, "turn": 0.14,
+         "stand": 0.13}
 TURN_EVENT = 30.0       # degrees: a stretch that turns less is captioned as straight ahead
-# A model steered by a future root trajectory learns to follow the trajectory's speed, and to stop, only where
-# the caption does not already say it: with every change of pace named and every stop a segment of its own
-# ("stands still"), the control only ever refined what the text implied, and a walk prompt steered to 3 m/s
-# or to a standstill walked on at its own pace (benchmarks/NOTES.md, "the speed is the prompt's"). So half the
-# walks and runs change speed, half of those changes are left unnamed, and "pause" segments stop inside a
-# walk or a run that the caption calls only that.
-SPEED_CHANGE = 0.5
-PLAIN_CHANGE = 0.5
-PAUSE_HOLD = (0.0, 1.5)  # s of standing added between the two moves of a pause, to their lead-out and lead-in
 FADE_FRAMES = (6, 16)   # 0.3-0.8 s: every segment starts and ends standing, so a fade joins two stances
 
 
@@ -283,7 +274,7 @@ def _travel(rng, kind: str, seconds: float) -> Action:
     """A walk or a run along a path: steady or changing speed, straight stretches, curves and corners."""
     pace = WALK_PACE if kind == "walk" else RUN_PACE
     walk_s = rng.uniform(3.0, max(3.1, seconds - 1.8))
-    speed, v0, v1 = _speed_profile(rng, pace, rng.random() < SPEED_CHANGE)
+    speed, v0, v1 = _speed_profile(rng, pace, rng.random() < 0.35)
     pieces = _pieces(rng, pace, walk_s)
     pose, info, tracks = _locomote(rng, pace, walk_s, speed, pieces)
     heading = tracks["heading"]
@@ -294,13 +285,10 @@ def _travel(rng, kind: str, seconds: float) -> Action:
     turns = [e[0] for e in events]
     net = float(heading[-1])
     b0, b1 = _band(kind, v0), _band(kind, v1)
-    # a speed that changes band is named only on its own, and then "runs" covers a jog too; half of those
-    # changes are not named at all (PLAIN_CHANGE)
+    # a speed that changes band is named only on its own, and then "runs" covers a jog too
     verb, adv = (b0[1], b0[2]) if b0 == b1 else ("walks" if kind == "walk" else "runs", "")
     phrases = [f"{verb}{adv}"]
-    if not turns and b0 != b1 and rng.random() < PLAIN_CHANGE:
-        phrases += [f"{verb} forward"]
-    elif not turns and b0 != b1:
+    if not turns and b0 != b1:
         first = f"walks {b0[3]}" if kind == "walk" else b0[3]
         phrases = [f"{first}, then {b1[3]}", f"{first} and then {b1[3]}"]
     elif not turns:
@@ -318,39 +306,6 @@ def _travel(rng, kind: str, seconds: float) -> Action:
     params = dict(info, kind=kind, speeds=(round(v0, 3), round(v1, 3)), net_turn=round(net, 1),
                   turns=[(round(e, 1), a, b) for e, a, b in events], pieces=[p[0] for p in pieces])
     return Action(family, pose, phrases, params)
-
-
-def _pause(rng, seconds: float) -> Action:
-    """A walk or a run that stops for a while (2.0-2.9 s standing, measured over 60 of them: the two moves' lead-out
-    and lead-in and PAUSE_HOLD) and goes on at another speed, along one heading, captioned as the walk or run alone
-    in half the phrasings and with its stop in the other half: where it stops, and how fast each half goes, only
-    the root's own future says."""
-    kind = "walk" if rng.random() < 0.65 else "run"
-    if seconds < 7.5:  # no room for two moves and a stop
-        return _travel(rng, kind, seconds)
-    pace = WALK_PACE if kind == "walk" else RUN_PACE
-    still = rng.uniform(*PAUSE_HOLD)
-    # each move's own frames add a 0.4-0.9 s lead-in and lead-out (_locomote): 3.6 s at most, less the fade
-    move = max(1.8, (seconds - 3.6 - still) / 2)
-    poses, speeds, walks, cadences = [], [], [], []
-    for _ in range(2):
-        speed, v0, _ = _speed_profile(rng, pace, False)
-        walk_s = rng.uniform(1.8, max(1.9, min(3.2, move)))
-        pose, info, _ = _locomote(rng, pace, walk_s, speed)
-        poses.append(pose)
-        speeds.append(round(v0, 3))
-        walks.append(info["walk"])
-        cadences.append(info["cadence"])
-    first = hold(poses[0], 0, seconds_to_frames(still))
-    fade = 8  # two standing poses
-    pose = blend(first, poses[1], fade)
-    second = first.T - fade
-    verb = "walks" if kind == "walk" else "runs"
-    phrases = [verb, f"{verb} forward", f"{verb} straight ahead", f"{verb} forward, stops, and {verb} on",
-               f"{verb} forward, stops for a moment, then {verb} on", f"{verb}, stops, and then {verb} on again"]
-    params = dict(kind="pause", gait=kind, speeds=tuple(speeds), cadence=round(float(np.mean(cadences)), 3),
-                  walk=(walks[0][0], second + walks[1][1]), stop=(walks[0][1], second + walks[1][0]), turns=[])
-    return Action("run" if kind == "run" else "walk_forward", pose, phrases, params)
 
 
 def _backpedal(rng, seconds: float) -> Action:
@@ -439,8 +394,8 @@ def _stand(rng, seconds: float) -> Action:
 
 
 _SEGMENTS = {"walk": lambda rng, s: _travel(rng, "walk", s), "run": lambda rng, s: _travel(rng, "run", s),
-             "pause": _pause, "backpedal": _backpedal, "sidestep": _sideways, "diagonal": _diagonal,
-             "turn": _turn_on_the_spot, "stand": _stand}
+             "backpedal": _backpedal, "sidestep": _sideways, "diagonal": _diagonal, "turn": _turn_on_the_spot,
+             "stand": _stand}
 
 
 def _draw_segments(rng: np.random.Generator) -> tuple[list[Action], list[int]]:
@@ -477,11 +432,11 @@ def _padding(actions: list[Action], fades: list[int]) -> list[tuple[int, int]]:
 
 
 def _to_span(params: dict, shift: int, length: int) -> None:
-    """The frames a segment steps on ("walk"), keeps its pace on ("steady"), stands on between two moves ("stop")
-    and turns on ("turns"), from its own pose's frames to its span's (what a reader of the sequence measures)."""
+    """The frames a segment steps on ("walk"), keeps its pace on ("steady") and turns on ("turns"), from
+    its own pose's frames to its span's (what a reader of the sequence measures)."""
     def frame(f):
         return int(np.clip(f + shift, 0, length))
-    for key in ("walk", "steady", "stop"):
+    for key in ("walk", "steady"):
         if key in params:
             params[key] = (frame(params[key][0]), frame(params[key][1]))
     if "turns" in params:

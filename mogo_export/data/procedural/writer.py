@@ -38,9 +38,7 @@ from .sequences import generate_long
 # 3: path sequences (short clips and long sequences unchanged)
 # 4: 46 more action families (styles, transitions, mimed, gestures, combat, exercise; the first 21 unchanged), and
 #    body parts other than the feet that may rest on the floor (kneeling, sitting, lying, falling)
-# 5: path sequences with stops inside a walk or run ("pause" segments) and unnamed speed changes (short clips and
-#    long sequences unchanged)
-GENERATOR_VERSION = 5
+GENERATOR_VERSION = 4
 SPLITS = (("train", 0.80), ("val", 0.15), ("test", 0.05))
 LONG_EVERY = 10  # by default one long sequence per 10 short clips
 PATH_EVERY = 10  # and one path sequence
