@@ -73,7 +73,7 @@ def _warn_if_old(data: Path) -> None:
     built = json.loads((data / "dataset.json").read_text()).get("generator_version")
     if built is not None and built != GENERATOR_VERSION:
         print(f"  note: {data} was built by procedural generator version {built}, this code builds version "
-              f"{GENERATOR_VERSION} (more action families): remove {data}, checkpoints/ and bundles/ to rebuild them")
+              f"{GENERATOR_VERSION}: remove {data}, checkpoints/ and bundles/ to rebuild them")
 
 
 def main(argv=None) -> int:

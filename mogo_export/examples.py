@@ -15,7 +15,7 @@ import torch
 
 from mogo_runtime.control.vector import token_controls
 
-from .data.dataset import MotionDataset
+from .data.dataset import MotionDataset, read_control_only
 from .data.timelines import read_timelines
 from .models.text_encoder import CachedTextEncoder, get_text_encoder
 
@@ -28,7 +28,7 @@ def caption_table(data: Path, out: Path, encoder_name: str, write: bool = True):
     encoder = CachedTextEncoder(get_text_encoder(encoder_name), out / "captions.npz")
     table = {}
     for split in ("train", "val", "test"):
-        for it in MotionDataset.load(data, split).items:
+        for it in MotionDataset.load(data, split, control_sequences=True).items:
             table[(split, it.clip_id)] = it.captions
     flat = sorted({c for caps in table.values() for c in caps})
     emb = dict(zip(flat, encoder.encode(flat).numpy()))
@@ -56,16 +56,29 @@ class TokenData:
     val_controls: list | None
     timelines: list
     timeline_controls: list | None
+    # per training clip and timeline: is it one of the dataset's control sequences (all False without them)
+    seq_control_only: list
+    timeline_control_only: list
 
     @property
     def by_length(self) -> np.ndarray:
         return np.argsort([len(q) for q in self.seqs], kind="stable")
 
 
-def load_token_data(data: Path, tokens_path: Path, table: dict, emb: dict, cfg, downsample: int) -> TokenData:
-    """tokens.npz (train.extract_tokens) and the caption table -> TokenData for transformer config `cfg`."""
+def load_token_data(data: Path, tokens_path: Path, table: dict, emb: dict, cfg, downsample: int,
+                    control_sequences: bool = False) -> TokenData:
+    """tokens.npz (train.extract_tokens) and the caption table -> TokenData for transformer config `cfg`; the
+    dataset's control sequences (dataset.json "control_only") only with `control_sequences` (the control adapter's
+    data): left out before anything is drawn, the transformer trains exactly as on a dataset without them."""
+    control_only = read_control_only(data)
+    skip = frozenset() if control_sequences else control_only
+
+    def clip(key):  # "train/<id>", "train/<id>:<first>-<stop>", "timeline/train/<id>" -> <id>
+        return key.rsplit("/", 1)[1].split(":")[0]
+
     with np.load(tokens_path) as z:
-        tokens = {k: z[k].astype(np.int64) for k in z.files if "/" in k and not k.startswith(ROOT)}
+        tokens = {k: z[k].astype(np.int64) for k in z.files if "/" in k and not k.startswith(ROOT)
+                  and clip(k) not in skip}
         controls = {k: token_controls(z[ROOT + k], downsample, cfg.control_horizon)
                     for k in tokens} if cfg.control_dim else None
 
@@ -74,12 +87,18 @@ def load_token_data(data: Path, tokens_path: Path, table: dict, emb: dict, cfg, 
         return ([tokens[k] for k in keys], [table[(name, k.split("/", 1)[1])] for k in keys],
                 None if controls is None else [controls[k] for k in keys])
 
-    timelines = [(token_units(t, tokens[f"timeline/train/{t.clip_id}"], downsample),
-                  None if controls is None else controls[f"timeline/train/{t.clip_id}"])
-                 for t in read_timelines(data, "train")]
-    timelines = [t for t in timelines if t[0][1]]
-    return TokenData(*split("train"), *split("val"), [t for t, _ in timelines],
-                     None if controls is None else [c for _, c in timelines])
+    lines = read_timelines(data, "train", control_sequences=control_sequences)
+    missing = [t.clip_id for t in lines if f"timeline/train/{t.clip_id}" not in tokens]
+    if missing:
+        raise ValueError(f"{tokens_path} holds no tokens for {len(missing)} sequences of {data} (e.g. "
+                         f"{missing[0]}): it was extracted from another version of the dataset; delete it")
+    timelines = [(t.clip_id, token_units(t, tokens[f"timeline/train/{t.clip_id}"], downsample),
+                  None if controls is None else controls[f"timeline/train/{t.clip_id}"]) for t in lines]
+    timelines = [t for t in timelines if t[1][1]]
+    train_keys = sorted(k for k in tokens if k.startswith("train/"))
+    return TokenData(*split("train"), *split("val"), [t for _, t, _ in timelines],
+                     None if controls is None else [c for _, _, c in timelines],
+                     [clip(k) in control_only for k in train_keys], [i in control_only for i, _, _ in timelines])
 
 
 def clip_examples(seqs, caps, emb, rng, n, cfg, by_length=None, controls=None) -> list:

@@ -77,6 +77,25 @@ class Distill:
 
 
 @dataclass(frozen=True)
+class Adapter:
+    """The control adapter, trained after the distillation with everything else frozen (adapter.py): its steps see
+    every sample with its own future root as the control, the dataset's control sequences included."""
+
+    dim: int               # TransformerConfig.adapter_dim: the bottleneck width after each block
+    steps: int
+    lr: float
+    batch_size: int = 32   # whole clips per step
+    windows: int = 8       # streaming windows per step (on data with timelines)
+    bf16: bool = False     # as Distill.bf16
+    control_repeat: int = 1  # the control sequences drawn as often as this many copies of them
+    # then, as the distillation guides the control (Distill.control_guidance), guided_steps more toward
+    # G0 + control_guidance (Gc - G0): Gc the adapted model's logits, G0 those without control
+    control_guidance: float = 1.0
+    guided_steps: int = 0
+    guided_lr: float = 2e-4
+
+
+@dataclass(frozen=True)
 class Preset:
     name: str
     # MoSA-VQ sizes: VQConfig fields that differ from its defaults. input_dim is left out: training sets it from
@@ -94,6 +113,7 @@ class Preset:
     trains_on_cpu: bool
     streaming: Streaming
     distill: Distill | None = None   # None: the bundle samples with classifier-free guidance (two rows)
+    adapter: Adapter | None = None   # None: no control adapter
 
     def __post_init__(self):
         # read-only views, so that nobody changes the table through a preset handed out
@@ -137,6 +157,8 @@ TINY = Preset(
     streaming=Streaming(window=5, refresh=3, windows=4),     # 8 = max_rel_dist
     # a gap the tiny model shows
     distill=Distill(guidance=4.0, steps=10, lr=3e-4, batch_size=8, windows=2, control_guidance=2.0),
+    adapter=Adapter(dim=8, steps=10, lr=1e-3, batch_size=8, windows=2, control_repeat=2, control_guidance=2.0,
+                    guided_steps=3),
 )
 
 # The demo model. With these two schedules both models train in 17.9 min on the idle 2-core machine with torch's
@@ -193,6 +215,13 @@ BASE = Preset(
     # but path speed within 10% 7.5% -> 3.2%, jerk 1.83 -> 1.89, text of controlled streams 0.889 -> 0.869; without
     # control the same (held-out whole clips 0.854 -> 0.849 int8, 3 seeds). 2 gave about half of each. 631 s here.
     distill=Distill(guidance=2.0, steps=400, lr=5e-5, batch_size=32, windows=8, bf16=True, control_guidance=3.0),
+    # the control adapter (adapter.py), 681 s here: 3 seeds of benchmarks/control.py against this base without it,
+    # waypoints reached in time 0.72 -> 0.95 and standing there 0.40 -> 0.94, path speed within 10% 3% -> 23%, game
+    # root > 45 deg off the capsule 45% -> 21%, text of controlled streams 0.87 -> 0.97, but jerk 1.89 -> 2.06;
+    # without control the same tokens in every variant. Of 11 trainings on a GPU (benchmarks/NOTES.md, "the control
+    # adapter"), 800 steps at width 128 reached fewer waypoints than none (0.57); the control sequences drawn 4x as
+    # often, twice the steps and lr 2e-3 at width 256 made the difference; guiding the control on top cost the text.
+    adapter=Adapter(dim=256, steps=1600, lr=2e-3, batch_size=32, windows=8, bf16=True, control_repeat=4),
 )
 
 PAPER = Preset(

@@ -31,6 +31,7 @@ from mogo_runtime.outputs.files import write_atomic
 from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
 from .data.dataset import MotionDataset
 from .data.timelines import read_timelines
+from .adapter import train_adapter
 from .distill import distill_transformer
 from .distributed import SINGLE, Group, native_bf16
 from .examples import (ROOT, caption_table, clip_examples, load_token_data, pad_examples, to_model,
@@ -221,8 +222,9 @@ def extract_tokens(data: Path, out: Path, progress: bool = True, device: torch.d
     vq.to(device or torch.device("cpu"))
     arrays = {}
     for split in ("train", "val", "test"):
-        ds = MotionDataset.load(data, split)
-        whole = [(f"timeline/{split}/{t.clip_id}", t.features) for t in read_timelines(data, split, ds.skeleton)]
+        ds = MotionDataset.load(data, split, control_sequences=True)     # the control adapter's tokens too
+        whole = [(f"timeline/{split}/{t.clip_id}", t.features)
+                 for t in read_timelines(data, split, ds.skeleton, control_sequences=True)]
         items = [(f"{split}/{it.clip_id}", it.features) for it in ds.items] + whole
         for key, features in tqdm(items, desc=f"tokens {split}", disable=not progress):
             T = len(features) // cfg.downsample * cfg.downsample
@@ -360,10 +362,13 @@ def train_all(data: Path, out: Path, preset: str = DEFAULT, seed: int = 0, progr
     t2 = time.perf_counter()
     if group.is_main:    # one process: a few hundred steps on the trained model
         distill_transformer(data, out, preset, seed, progress, group.device)
+        t_distill = time.perf_counter()
+        train_adapter(data, out, preset, seed, progress, group.device)
     group.barrier()
     t3 = time.perf_counter()
     if group.is_main:
         print(f"trained {preset} in {out}: vq {t1 - t0:.0f} s, transformer {t2 - t1:.0f} s"
-              + (f", guidance distillation {t3 - t2:.0f} s" if pset.distill else "")
+              + (f", guidance distillation {t_distill - t2:.0f} s" if pset.distill else "")
+              + (f", control adapter {t3 - t_distill:.0f} s" if pset.adapter else "")
               + (f" on {group.world} processes ({group.device.type})" if group.world > 1 else ""))
     return out

@@ -110,6 +110,19 @@ def read_segments(root: Path) -> dict[str, list[Segment]]:
         raise ValueError(f"{path}: unreadable segments ({e!r})") from None
 
 
+def read_control_only(root: Path) -> frozenset[str]:
+    """The clip ids that train only the control adapter (dataset.json's "control_only": a list of ids; none
+    without the file or the key): their captions leave out stops and speed changes that only their root's
+    future tells."""
+    path = root / "dataset.json"
+    if not path.is_file():
+        return frozenset()
+    ids = json.loads(path.read_text(encoding="utf-8")).get("control_only") or []
+    if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
+        raise ValueError(f"{path}: \"control_only\" must be a list of clip ids (strings)")
+    return frozenset(ids)
+
+
 def _segment_family(segments: list[Segment], a: int, b: int) -> str | None:
     """The family of the segment covering most of frames [a, b), if one covers at least half of them."""
     best, cover = None, 0
@@ -145,9 +158,10 @@ class MotionDataset:
 
     @classmethod
     def load(cls, root, split: str = "train", skeleton: str = "humanml3d", min_frames: int | None = None,
-             max_frames: int = MAX_FRAMES) -> "MotionDataset":
+             max_frames: int = MAX_FRAMES, control_sequences: bool = False) -> "MotionDataset":
         """Read one split. Keeps items with min_frames <= T < max_frames (T2M's rule; min_frames defaults to
-        40 for humanml3d, 24 for kit)."""
+        40 for humanml3d, 24 for kit). The control sequences (`read_control_only`) only with `control_sequences`:
+        the control adapter's tokens and captions; the VQ, the classifier and every evaluation leave them out."""
         root = Path(root)
         if not root.is_dir():
             raise FileNotFoundError(f"dataset folder not found: {root}")
@@ -156,7 +170,8 @@ class MotionDataset:
         min_frames = MIN_FRAMES[skel.name] if min_frames is None else int(min_frames)
         mean, std = load_mean_std(root, dim)
         labels_dir = root / "labels"
-        ids = read_split(root, split)
+        skip = frozenset() if control_sequences else read_control_only(root)
+        ids = [i for i in read_split(root, split) if i not in skip]
         all_segments = read_segments(root)
         segments = {cid: all_segments[cid] for cid in ids if cid in all_segments}
 

@@ -16,7 +16,7 @@ import numpy as np
 from mogo_runtime.kinematics.features import FeatureLayout
 from mogo_runtime.kinematics.skeleton import get_skeleton
 
-from .dataset import read_captions, read_features, read_split
+from .dataset import read_captions, read_control_only, read_features, read_split
 
 
 @dataclass
@@ -33,12 +33,15 @@ class Timeline:
     segments: list[Segment]      # in time order
 
 
-def read_timelines(root: str | Path, split: str, skeleton: str = "humanml3d") -> list[Timeline]:
-    """The clips of `split` with at least one timed caption, whole; segments sorted by start."""
+def read_timelines(root: str | Path, split: str, skeleton: str = "humanml3d",
+                   control_sequences: bool = False) -> list[Timeline]:
+    """The clips of `split` with at least one timed caption, whole; segments sorted by start. The control sequences
+    only with `control_sequences` (as MotionDataset.load)."""
     root, skel = Path(root), get_skeleton(skeleton)
     dim = FeatureLayout.for_skeleton(skel).dim
     out = []
-    for clip_id in read_split(root, split):
+    skip = frozenset() if control_sequences else read_control_only(root)
+    for clip_id in (i for i in read_split(root, split) if i not in skip):
         spans: dict[tuple[int, int], list[str]] = {}
         for c in read_captions(root / "texts" / f"{clip_id}.txt"):
             if c.end > c.start:

@@ -238,7 +238,9 @@ def export_bundle(ckpt_dir: str | Path, out: str | Path, opset: int = DEFAULT_OP
                                          "preset": meta.get("preset"),
                                          "learnable_scaling": vq.cfg.learnable_scaling,
                                          # the guidance its conditional row learned (distill.py), if any
-                                         "distilled": tr_payload["meta"].get("distilled")}},
+                                         "distilled": tr_payload["meta"].get("distilled"),
+                                         # the control adapter inside the step graphs (adapter.py), if any
+                                         "adapter": tr_payload["meta"].get("adapter")}},
             model=dims,
             skeleton=skeleton,
             normalization=Normalization(mean=tuple(np.round(meta["mean"], 7).tolist()),

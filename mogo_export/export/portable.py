@@ -97,6 +97,8 @@ class FixedCacheStepGraph(nn.Module):
             y = (att @ present_v).reshape(-1, L, C)                               # (B, L, C)
             x = x + a.proj(y)
             x = x + block.mlp(block.ln_2(x))
+            if m.adapters is not None:
+                x = m.adapters[i](x, control)                                     # (B, 1, D) onto (B, L, C)
             presents += [present_k, present_v]
         logits = m.head(m.ln_f(x)).unsqueeze(1)                                   # (B, 1, L, K+1)
         return (logits, *presents)

@@ -26,6 +26,12 @@ from mogo_runtime.control.vector import control_dim
 # the next control_horizon tokens (mogo_runtime/control/vector.py), projected and added to every level stream of
 # that step. Training shows a clip's own future root, or all zeros ("no control") with control_drop_prob, and the
 # guidance's null text keeps the control: guidance sharpens the action, the control is obeyed in both branches.
+#
+# Control adapter (adapter_dim > 0): after each block, a bottleneck MLP of the stream and the control vector adds
+# to the steps whose control is present (its flag, element 0, times the MLP), trained after the rest with the rest
+# frozen (mogo_export/adapter.py). A step without control adds exactly zero, so a text-only stream makes the
+# tokens of the model before it bit for bit, while a controlled one learns stops and speeds its caption leaves
+# out (data that, trained into the transformer itself, made text-only walks stop unasked: benchmarks/NOTES.md).
 
 
 @dataclass
@@ -44,6 +50,7 @@ class TransformerConfig(SpecialTokens):
     cond_drop_prob: float = 0.1  # chance per training sample to replace the text by the null (zero) text
     control_horizon: int = 0     # tokens of wanted root trajectory per step (mogo_runtime/control); 0: no control
     control_drop_prob: float = 0.5  # chance per training sample to see no control (all zeros: "go as you like")
+    adapter_dim: int = 0         # the control adapter's bottleneck width (0: none; needs control_horizon > 0)
 
     @property
     def vocab_size(self) -> int:  # rows per level of the embedding table
@@ -124,6 +131,21 @@ class MLP(nn.Module):
         return self.drop(self.proj(F.gelu(self.fc(x))))  # (N, S, C)
 
 
+class ControlAdapter(nn.Module):
+    """x + present * up(gelu(down(ln(x)) + ctrl(control))): zero at initialisation (`up` starts at zero) and
+    wherever the control's present flag is 0."""
+
+    def __init__(self, cfg: TransformerConfig):
+        super().__init__()
+        self.ln = nn.LayerNorm(cfg.d_model)
+        self.down = nn.Linear(cfg.d_model, cfg.adapter_dim)
+        self.ctrl = nn.Linear(cfg.control_dim, cfg.adapter_dim, bias=False)
+        self.up = nn.Linear(cfg.adapter_dim, cfg.d_model)
+
+    def forward(self, x, control):  # x (N, S, C), control broadcastable to (N, S, control_dim)
+        return x + control[..., :1] * self.up(F.gelu(self.down(self.ln(x)) + self.ctrl(control)))
+
+
 class Block(nn.Module):
     """Pre-LN transformer block."""
 
@@ -160,10 +182,15 @@ class RQHCTransformer(nn.Module):
         self.ctrl_proj = nn.Linear(cfg.control_dim, C) if cfg.control_dim else None
         self.drop = nn.Dropout(cfg.dropout)
         self.blocks = nn.ModuleList([Block(cfg) for _ in range(cfg.n_layers)])
+        if cfg.adapter_dim and not cfg.control_dim:
+            raise ValueError("adapter_dim needs a model with control (control_horizon > 0)")
+        self.adapters = nn.ModuleList([ControlAdapter(cfg) for _ in range(cfg.n_layers)]) if cfg.adapter_dim else None
         self.ln_f = nn.LayerNorm(C)
         self.head = nn.Linear(C, cfg.codebook_size + 1)  # K codes + END
         self.register_buffer("level_offset", torch.arange(L) * cfg.vocab_size, persistent=False)
         self.apply(self._init_weights)
+        for a in self.adapters or []:
+            nn.init.zeros_(a.up.weight)
         for name, p in self.named_parameters():
             if name.endswith("proj.weight") and not name.startswith("cond_proj"):
                 # GPT-2: scale residual projections by depth so the residual stream starts small
@@ -186,8 +213,8 @@ class RQHCTransformer(nn.Module):
         return [(z, z) for _ in range(cfg.n_layers)]
 
     def _inputs(self, text_emb, tokens, control=None):
-        """text_emb (B, text_dim), tokens (B, S, L), control (B, S, control_dim) or None (no control) -> stream
-        inputs (B*L, S, C), eq. 7-8 (plus the control's projection)."""
+        """text_emb (B, text_dim), tokens (B, S, L), control (B, S, control_dim) or None (no control) -> (stream
+        inputs (B*L, S, C), eq. 7-8 plus the control's projection; the control as read: `_control`'s, or None)."""
         cfg = self.cfg
         B, S, L = tokens.shape
         if self.training and cfg.cond_drop_prob > 0:
@@ -200,8 +227,9 @@ class RQHCTransformer(nn.Module):
         cum = emb.masked_fill(is_bos, 0.0).cumsum(dim=2)  # (B, S, L, C)
         x = torch.where(is_bos, prefix, cum)  # (B, S, L, C)
         if self.ctrl_proj is not None:
-            x = x + self.ctrl_proj(self._control(control, B, S, text_emb)).unsqueeze(2)  # (B, S, 1, C) to every level
-        return x.transpose(1, 2).reshape(B * L, S, -1)  # (B*L, S, C), row b*L + l
+            control = self._control(control, B, S, text_emb)  # after the text's draw, as before the adapter
+            x = x + self.ctrl_proj(control).unsqueeze(2)  # (B, S, 1, C) to every level
+        return x.transpose(1, 2).reshape(B * L, S, -1), control  # (B*L, S, C), row b*L + l
 
     def _control(self, control, B, S, like):
         """The control as the model reads it: zeros for None; in training, zeros for a control_drop_prob share."""
@@ -224,10 +252,17 @@ class RQHCTransformer(nn.Module):
         B, S, L = tokens.shape
         if control is not None and self.ctrl_proj is None:
             raise ValueError("this model was trained without control (control_horizon 0)")
-        x = self.drop(self._inputs(text_emb, tokens, control))  # (B*L, S, C)
+        given = control is not None
+        x, control = self._inputs(text_emb, tokens, control)
+        x = self.drop(x)  # (B*L, S, C)
+        # each level stream reads its sample's control: (B, S, D) -> (B*L, S, D), row b*L + l; none given adds 0
+        rows = control.unsqueeze(1).expand(B, L, S, -1).reshape(B * L, S, -1).to(x.dtype) \
+            if given and self.adapters is not None else None
         presents = []
-        for block, (pk, pv) in zip(self.blocks, past):
+        for i, (block, (pk, pv)) in enumerate(zip(self.blocks, past)):
             x, k, v = block(x, pk, pv)
+            if rows is not None:
+                x = self.adapters[i](x, rows)
             presents.append((k, v))
         logits = self.head(self.ln_f(x))  # (B*L, S, K+1)
         return logits.view(B, L, S, -1).transpose(1, 2), presents  # (B, S, L, K+1)

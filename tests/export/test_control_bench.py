@@ -66,7 +66,7 @@ def test_the_benchmark_runs_on_the_tiny_bundle(tiny_bundle, tmp_path):
     # 85 clips: their singles show every family, walk_forward (whose speed the benchmark measures) among them;
     # 10 path sequences: the held-out splits get some
     data = build_dataset(tmp_path / "data", num_clips=85, seed=0, progress=False, workers=1, long_sequences=0,
-                         path_sequences=10)
+                         path_sequences=10, control_sequences=0)
     out = tmp_path / "control.json"
     cmd = [sys.executable, "-m", "benchmarks.control", str(tiny_bundle), "--data", str(data), "--paths", "2",
            "--waypoints", "2", "--game-root", "1", "--crowd", "3", "--ticks", "3", "--json", str(out),

@@ -37,7 +37,7 @@ def feats(t, dim=263, seed=0):
 
 def test_loads_the_procedural_dataset(tmp_path):
     root = P.build_dataset(tmp_path / "proc", num_clips=12, seed=2, progress=False, workers=1, long_sequences=0,
-                           path_sequences=0)
+                           path_sequences=0, control_sequences=0)
     sizes = {}
     for split in ("train", "val", "test"):
         ds = MotionDataset.load(root, split)
@@ -59,7 +59,7 @@ def test_loads_the_procedural_dataset(tmp_path):
 
 def test_long_sequences_load_as_their_segments(tmp_path):
     root = P.build_dataset(tmp_path / "proc", num_clips=10, seed=5, progress=False, workers=1, long_sequences=2,
-                           path_sequences=1)
+                           path_sequences=1, control_sequences=0)
     table = json.loads((root / "dataset.json").read_text())["segments"]
     assert sorted(table) == ["000010", "000011", "000012"]  # two long sequences, then a path sequence
     seen = []

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mogo_export.data import procedural as P
-from mogo_export.data.dataset import read_captions
+from mogo_export.data.dataset import MotionDataset, read_captions
 from mogo_export.data.timelines import read_timelines
 from mogo_export.data.procedural import captions, clips as C, families, locomotion, paths as PT, sequences as S, writer
 from mogo_export.data.procedural.action import FULL_BUDGET, TimeBudget
@@ -30,6 +30,7 @@ N = next(n for n in itertools.count(1) if n - n // C.SEQUENCE_EVERY >= len(FAMIL
 SHORT = [f"{i:06d}" for i in range(N)]
 LONG = [f"{i:06d}" for i in range(N, N + N // 10)]
 PATH = [f"{i:06d}" for i in range(N + N // 10, N + 2 * (N // 10))]
+CONTROL = [f"{i:06d}" for i in range(N + 2 * (N // 10), N + 3 * (N // 10))]
 
 
 @pytest.fixture(scope="module")
@@ -63,33 +64,39 @@ def test_same_seed_same_bytes_whatever_the_workers(tmp_path):
     a = P.build_dataset(tmp_path / "a", num_clips=20, seed=3, progress=False, workers=1)
     b = P.build_dataset(tmp_path / "b", num_clips=20, seed=3, progress=False, workers=2)
     fa, fb = _files(a), _files(b)
-    assert len(fa) == 4 * (20 + 2 + 2) + 3 + 2 + 1  # 20 clips, 2 long sequences and 2 path sequences
+    assert len(fa) == 4 * (20 + 2 + 2 + 2) + 3 + 2 + 1  # 20 clips, 2 long, 2 path and 2 control sequences
     assert fa.keys() == fb.keys()
     assert [k for k in fa if fa[k] != fb[k]] == []
     c = P.build_dataset(tmp_path / "c", num_clips=20, seed=4, progress=False, workers=1)
     assert _files(c)["new_joint_vecs/000000.npy"] != fa["new_joint_vecs/000000.npy"]
-    # long and path sequences are added: without them the short clips, their split and Mean/Std are the
-    # same files
+    # long, path and control sequences are added: without them the short clips, their split and Mean/Std are
+    # the same files
     d = _files(P.build_dataset(tmp_path / "d", num_clips=20, seed=3, progress=False, workers=1, long_sequences=0,
-                               path_sequences=0))
+                               path_sequences=0, control_sequences=0))
     splits = ("train.txt", "val.txt", "test.txt")
     assert len(d) == 4 * 20 + 6
     assert [k for k in d if k not in splits + ("dataset.json",) and d[k] != fa[k]] == []
     for name in splits:
-        assert set(d[name].split()) == set(fa[name].split()) - {b"000020", b"000021", b"000022", b"000023"}
-    # a path sequence depends on its index among the path sequences only: without the long sequences the
-    # same files, two ids earlier
+        assert set(d[name].split()) == set(fa[name].split()) - {b"%06d" % i for i in range(20, 26)}
+    # a path or control sequence depends on its index among its kind only: without the long sequences the same
+    # files, two ids earlier
     e = _files(P.build_dataset(tmp_path / "e", num_clips=20, seed=3, progress=False, workers=1, long_sequences=0))
     for sub, ext in (("new_joint_vecs", "npy"), ("new_joints", "npy"), ("texts", "txt"), ("labels", "txt")):
-        for i in (0, 1):
+        for i in (0, 1, 2, 3):
             assert e[f"{sub}/{20 + i:06d}.{ext}"] == fa[f"{sub}/{22 + i:06d}.{ext}"]
+    # and without the control sequences, every other file is the same, dataset.json but for its list of them
+    f = _files(P.build_dataset(tmp_path / "f", num_clips=20, seed=3, progress=False, workers=1, control_sequences=0))
+    assert [k for k in f if k not in splits + ("dataset.json",) and f[k] != fa[k]] == []
+    assert json.loads(fa["dataset.json"])["control_only"] == ["000024", "000025"]
+    assert json.loads(f["dataset.json"])["control_only"] == []
 
 
 def test_every_family_present_and_labelled(built):
     labels = {p.stem: p.read_text().strip() for p in (built / "labels").glob("*.txt")}
-    assert sorted(labels) == SHORT + LONG + PATH
+    assert sorted(labels) == SHORT + LONG + PATH + CONTROL
     info = json.loads((built / "dataset.json").read_text())
-    for i in LONG + PATH:  # seq:<families in order>, those of its segments
+    assert info["control_only"] == CONTROL
+    for i in LONG + PATH + CONTROL:  # seq:<families in order>, those of its segments
         assert labels.pop(i) == "seq:" + "+".join(s["family"] for s in info["segments"][i])
     singles = {v for v in labels.values() if not v.startswith("seq:")}
     assert singles == set(FAMILIES)
@@ -101,20 +108,20 @@ def test_every_family_present_and_labelled(built):
     assert info["label_counts"] == {k: list(labels.values()).count(k) for k in set(labels.values())}
     assert info["families"] == FAMILIES and info["seed"] == 7 and info["num_clips"] == N
     assert info["num_long_sequences"] == len(LONG) and info["num_path_sequences"] == len(PATH)
-    assert sorted(info["segments"]) == LONG + PATH
+    assert sorted(info["segments"]) == LONG + PATH + CONTROL and info["num_control_sequences"] == len(CONTROL)
     assert sum(info["path_family_counts"].values()) == sum(len(info["segments"][i]) for i in PATH)
     assert info["fps"] == 20.0 and info["skeleton"]["name"] == "humanml3d" and info["feature_dim"] == 263
 
 
 def test_layout_shapes_splits_and_stats(built):
     ids = sorted(p.stem for p in (built / "new_joint_vecs").glob("*.npy"))
-    assert ids == SHORT + LONG + PATH
+    assert ids == SHORT + LONG + PATH + CONTROL
     for i in ids:
         f = np.load(built / "new_joint_vecs" / f"{i}.npy")
         j = np.load(built / "new_joints" / f"{i}.npy")
         assert f.dtype == np.float32 and j.dtype == np.float32
         assert f.shape == (len(j) - 1, 263) and j.shape[1:] == (22, 3)
-        if i in LONG + PATH:
+        if i in LONG + PATH + CONTROL:
             assert 400 <= len(j) <= 1200  # 20..60 s
         else:
             assert 41 <= len(j) <= 200  # 2..10 s at 20 fps; features keep T2M's 40 <= T < 200
@@ -122,11 +129,11 @@ def test_layout_shapes_splits_and_stats(built):
         assert abs(j[..., 1].min()) < 1e-6  # HumanML3D puts the lowest joint of the clip on the floor
     splits = {s: (built / f"{s}.txt").read_text().split() for s in ("train", "val", "test")}
     assert sorted(sum(splits.values(), [])) == ids
-    # 80/15/5 of the short clips, rounded (val first), and of the long and path sequences, split apart from them
+    # 80/15/5 of the short clips, rounded (val first), and of the long, path and control sequences, each split apart
     val = round(0.15 * N)
-    assert [len(set(v) - set(LONG + PATH)) for v in splits.values()] == [N - val - (N - round(0.8 * N) - val), val,
-                                                                          N - round(0.8 * N) - val]
-    for group in (LONG, PATH):
+    assert [len(set(v) - set(LONG + PATH + CONTROL)) for v in splits.values()] == [
+        N - val - (N - round(0.8 * N) - val), val, N - round(0.8 * N) - val]
+    for group in (LONG, PATH, CONTROL):
         assert sorted(set(group) & set(sum(splits.values(), []))) == group
         assert len(set(group) & set(splits["train"])) >= len(group) - 2 * (len(group) >= 3)
     mean, std = np.load(built / "Mean.npy"), np.load(built / "Std.npy")
@@ -148,7 +155,7 @@ def test_joints_file_is_what_the_features_describe(built):
         j = np.load(built / "new_joints" / p.name.replace(".txt", ".npy"))
         np.testing.assert_allclose(recover_from_ric(f, 22), j[:-1], atol=1e-4)
         checked += 1
-    assert checked == len(SHORT + LONG + PATH) and turning >= 2
+    assert checked == len(SHORT + LONG + PATH + CONTROL) and turning >= 2
 
 
 def test_bone_lengths_are_the_skeletons(clips, built):
@@ -503,14 +510,16 @@ def test_long_sequences_tile_and_each_segment_does_what_its_caption_says():
 
 PATH_FAMILIES = {"walk": {"walk_forward", "walk_circle"}, "run": {"run"}, "backpedal": {"walk_backward"},
                  "sidestep": {"sidestep_left", "sidestep_right"}, "diagonal": {"walk_forward"},
-                 "turn": {"turn_left", "turn_right"}, "stand": {"stand_idle"}}
+                 "turn": {"turn_left", "turn_right"}, "stand": {"stand_idle"}, "pause": {"walk_forward", "run"}}
 
 
 @pytest.fixture(scope="module")
 def path_clips():
-    """6 path sequences straight from the generator, and their joints as the features give them back."""
-    return [(clip, through_features(clip.joints))
-            for clip in (PT.generate_path_sequence(np.random.default_rng([41, i])) for i in range(6))]
+    """6 path sequences and 4 control sequences straight from the generator, and their joints as the features give
+    them back."""
+    clips = [PT.generate_path_sequence(np.random.default_rng([41, i])) for i in range(6)]
+    clips += [PT.generate_path_sequence(np.random.default_rng([43, i]), PT.CONTROL_KINDS) for i in range(4)]
+    return [(clip, through_features(clip.joints)) for clip in clips]
 
 
 def _facing(j):
@@ -605,6 +614,25 @@ def path_promises(seg, j):
                               ("full circle|all the way|spins", 280, 400)):
             if re.search(words, text):
                 out.append((f"{words}: turns {lo}-{hi} deg", lo < abs(m["turn"]) < hi))
+    if kind in ("walk", "run"):  # a change of pace is named, unless it turns or is a control sequence's "pace"
+        v0, v1 = p["speeds"]
+        named = "then" in text and "turns" not in text
+        out.append(("names its change of pace unless it turns or is unnamed", named == (
+            PT._band(kind, v0) != PT._band(kind, v1) and not p["turns"] and not p["unnamed"])))
+        if p["unnamed"]:
+            out.append(("changes pace, unnamed", abs(v1 - v0) > 0.1))
+    if kind == "pause":  # a walk or run, a stop, the same on, captioned as the walk or run alone
+        out.append((f"{p['gait']}s, as its caption says", ("runs" in text) == (p["gait"] == "run")))
+        out.append(("its caption does not say it stops", "stop" not in text))
+        a, b = p["stop"]
+        v = np.linalg.norm(np.diff(j[:, 0, [0, 2]], axis=0), axis=-1) * FPS
+        still = np.flatnonzero(np.diff(np.concatenate([[0], v[a:b] < 0.05, [0]]).astype(int)))
+        out.append(("stands still 1 s or more between its moves", (still[1::2] - still[::2]).max(initial=0) >= FPS))
+        for what, (s0, s1) in (("before", (0, a)), ("after", (b, len(j) - 1))):
+            d = j[s1, 0, [0, 2]] - j[s0, 0, [0, 2]]
+            face = _facing(j)[s0]
+            out.append((f"moves forward 0.6 m or more {what} it stops", d @ [np.sin(face), np.cos(face)] > 0.6))
+        out.append(("keeps its heading within 45 deg", abs(m["turn"]) < 45))
     if kind == "stand":
         out.append(("stands: moves < 5 cm, turns < 5 deg", m["dist"] < 0.05 and abs(m["turn"]) < 5))
     if kind != "stand":
@@ -627,7 +655,8 @@ def test_path_sequences_tile_and_each_segment_does_what_its_caption_says(path_cl
             kinds.add(s.params["kind"])
             broken += [f"path [41, {i}] frames [{s.start}, {s.end}) {s.caption!r}: not {what}"
                        for what, ok in path_promises(s, j[s.start:s.end]) if not ok]
-    assert kinds == set(PT.KINDS)
+    assert kinds == set(PT.KINDS) | {"pause"}  # a "pace" is a walk or run whose caption leaves its speed out
+    assert any(s.params.get("unnamed") for clip, _ in path_clips for s in clip.segments)
     assert not broken, "\n".join(broken)
 
 
@@ -646,7 +675,7 @@ def test_path_sequences_feet_floor_and_smoothness(path_clips):
         acc = np.linalg.norm(np.diff(j, 2, axis=0), axis=-1) * FPS * FPS
         assert ang.max() < 60 and acc.max() < 200
         for s in clip.segments:
-            kind, seg = s.params["kind"], j[s.start:s.end]
+            kind, seg = s.params.get("gait", s.params["kind"]), j[s.start:s.end]  # a pause walks or runs
             slide, toe = _slides(seg)
             slides.append(slide)
             planted.setdefault(kind, []).append(toe)
@@ -715,3 +744,19 @@ def test_path_sequences_are_timelines(built):
         assert [(s.first, s.stop) for s in lines[i].segments] == [(g["start"], min(g["end"], len(lines[i].features)))
                                                                    for g in segments]
         assert all(len(s.captions) == 1 for s in lines[i].segments)
+
+
+def test_control_sequences_load_only_when_asked(built):
+    """The VQ, the classifier, the caption index and every evaluation read the dataset without its control
+    sequences (as before they existed); the control adapter's tokens and captions with them."""
+    control = set(json.loads((built / "dataset.json").read_text())["control_only"])
+    assert control == set(CONTROL)
+    for split in ("train", "val", "test"):
+        ids = set((built / f"{split}.txt").read_text().split()) & control
+        plain = {it.clip_id.split(":")[0] for it in MotionDataset.load(built, split).items}
+        every = {it.clip_id.split(":")[0] for it in MotionDataset.load(built, split, control_sequences=True).items}
+        assert not plain & control and every - plain == ids
+        plain = {t.clip_id for t in read_timelines(built, split)}
+        every = {t.clip_id for t in read_timelines(built, split, control_sequences=True)}
+        assert not plain & control and every - plain == ids
+    assert set((built / "train.txt").read_text().split()) & control  # the adapter has some to learn from

@@ -1,4 +1,6 @@
 """Training runs, lowers the loss, checkpoints atomically, resumes exactly; the verifier passes on a tiny bundle."""
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -6,7 +8,8 @@ import torch
 import mogo_export.examples as examples
 import mogo_export.train as train
 from mogo_export.checkpoint import CheckpointError, build_from_checkpoint, read_checkpoint, save_checkpoint
-from mogo_export.data.dataset import MotionDataset
+from mogo_export.data.dataset import MotionDataset, read_control_only
+from mogo_export.models.transformer import RQHCTransformer, TransformerConfig
 from mogo_export.models import vq as V
 from mogo_export.presets import get_preset
 from mogo_export.verify import verify
@@ -281,3 +284,65 @@ def test_a_bf16_schedule_trains_in_bf16_only_where_the_cpu_computes_it(tiny_chec
         weights[bf16] = payload["model"]
     same = all(torch.equal(weights[False][k], weights[True][k]) for k in weights[False])
     assert same != native_bf16(torch.device("cpu"))
+
+
+# -----------------------------------------------------------------------------
+# the control adapter (adapter.py)
+
+def test_the_control_sequences_train_only_the_adapter(tiny_checkpoints, data):
+    """load_token_data leaves the dataset's control sequences out unless asked (the adapter's data), before anything
+    is drawn from it: the transformer and its distillation train on the data as it was without them."""
+    _, cfg, payload = build_from_checkpoint(tiny_checkpoints / "transformer.pt", "transformer", TransformerConfig,
+                                            RQHCTransformer)
+    table, emb, _ = examples.caption_table(data, tiny_checkpoints, payload["meta"]["text_encoder"], write=False)
+    control_only = read_control_only(data)
+    assert len(control_only) == 6  # 60 clips: one control sequence per 10, the last ids
+    with np.load(tiny_checkpoints / "tokens.npz") as z:
+        keys = [k for k in z.files if k.startswith("train/")]
+    n_control = sum(k.split("/")[1].split(":")[0] in control_only for k in keys)
+    assert n_control > 0
+    plain = examples.load_token_data(data, tiny_checkpoints / "tokens.npz", table, emb, cfg, 2)
+    every = examples.load_token_data(data, tiny_checkpoints / "tokens.npz", table, emb, cfg, 2,
+                                     control_sequences=True)
+    assert len(plain.seqs) == len(keys) - n_control and len(every.seqs) == len(keys)
+    assert len(plain.timelines) < len(every.timelines)
+    for a, b in ((plain.seqs, every.seqs), (plain.caps, every.caps), (plain.controls, every.controls),
+                 ([t[0] for t in plain.timelines], [t[0] for t in every.timelines])):
+        assert all(np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y for x, y in zip(a, b))
+
+
+def test_the_control_adapter_trains_itself_only_and_again_the_same(tiny_checkpoints, data, tmp_path,
+                                                                    one_torch_thread):
+    """The tiny training's adapter, trained again from the distilled model it started from, is the same weights
+    (to float rounding: the tiny bundle trained with other threads); nothing but the adapters changed, and without
+    control the model gives the distilled model's logits exactly."""
+    import shutil
+
+    from mogo_export.adapter import train_adapter
+
+    trained, cfg, payload = build_from_checkpoint(tiny_checkpoints / "transformer.pt", "transformer",
+                                                  TransformerConfig, RQHCTransformer)
+    assert cfg.adapter_dim == 8 and payload["meta"]["adapter"]["steps"] == 10
+    out = tmp_path / "ck"
+    shutil.copytree(tiny_checkpoints, out)
+    base = RQHCTransformer(dataclasses.replace(cfg, adapter_dim=0))
+    base.load_state_dict({k: v for k, v in trained.state_dict().items() if not k.startswith("adapters.")})
+    base.eval()
+    meta = {k: v for k, v in payload["meta"].items() if k != "adapter"}
+    save_checkpoint(out / "transformer.pt", "transformer", base.cfg, base, payload["train"], meta)
+    train_adapter(data, out, "tiny", progress=False)
+    again = build_from_checkpoint(out / "transformer.pt", "transformer", TransformerConfig, RQHCTransformer)[0]
+    for (name, a), b in zip(trained.state_dict().items(), again.state_dict().values()):
+        assert torch.equal(a, b) if not name.startswith("adapters.") else torch.allclose(a, b, atol=1e-5), name
+    assert all(torch.count_nonzero(a.up.weight) > 0 for a in again.adapters)
+    g = torch.Generator().manual_seed(0)
+    text = torch.randn(2, cfg.text_dim, generator=g)
+    tok = torch.randint(0, cfg.codebook_size, (2, 5, cfg.num_levels), generator=g)
+    tok[:, 0] = cfg.bos_id
+    control = torch.randn(2, 5, cfg.control_dim, generator=g)
+    control[..., 0] = 1.0
+    control[1] = 0.0
+    with torch.no_grad():
+        got, want = again(text, tok, control), base(text, tok, control)
+    assert torch.equal(got[1], want[1]) and (got[0] - want[0]).abs().amax() > 0
+    assert train_adapter(data, out, "tiny", progress=False) == out / "transformer.pt"  # done: skipped

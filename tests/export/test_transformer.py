@@ -112,7 +112,7 @@ def test_input_is_the_prefix_at_bos_and_the_level_cumsum_after():
     K3, B, S, L = cfg.vocab_size, 2, 4, cfg.num_levels
     text, tok = torch.randn(B, cfg.text_dim), _tokens(cfg, B, S)
     with torch.no_grad():
-        x = m._inputs(text, tok).view(B, L, S, -1)  # rows b*L + l
+        x = m._inputs(text, tok)[0].view(B, L, S, -1)  # rows b*L + l
         prefix = m.cond_proj(text)  # (B, C)
         for l in range(L):
             torch.testing.assert_close(x[:, l, 0], prefix + m.q_emb[l])  # PnQ, eq. 7
@@ -211,3 +211,33 @@ def test_presets_build_and_take_a_training_step(name):
     loss.backward()
     opt.step()
     assert torch.isfinite(loss) and not torch.equal(before, m.head.weight)
+
+
+def test_the_control_adapter_adds_nothing_where_the_control_is_absent():
+    """Rows (and steps) without control give the model without adapters' logits exactly, even with trained
+    (non-zero) adapters; controlled steps change, and only from their own step on."""
+    base = _model()
+    m = RQHCTransformer(get_preset("tiny").transformer_config(adapter_dim=8)).eval()
+    m.load_state_dict(base.state_dict(), strict=False)
+    g = torch.Generator().manual_seed(3)
+    for p in m.adapters.parameters():
+        p.data = torch.randn(p.shape, generator=g)  # as if trained: the up projection no longer zero
+    cfg = m.cfg
+    B, S = 3, 7
+    text, tok = torch.randn(B, cfg.text_dim, generator=g), _tokens(cfg, B, S)
+    control = torch.randn(B, S, cfg.control_dim, generator=g)
+    control[..., 0] = 1.0
+    control[1] = 0.0          # a free character in the batch
+    control[2, :4] = 0.0      # steered from step 4 on
+    with torch.no_grad():
+        assert torch.equal(m(text, tok), base(text, tok))                       # no control given at all
+        got, want = m(text, tok, control), base(text, tok, control)
+    assert torch.equal(got[1], want[1]) and torch.equal(got[2, :4], want[2, :4])
+    assert (got[0] - want[0]).abs().amax() > 1e-3 and (got[2, 4:] - want[2, 4:]).abs().amax() > 1e-3
+
+
+def test_the_control_adapter_starts_as_nothing_and_needs_control():
+    m = _model(adapter_dim=8)
+    assert all(torch.count_nonzero(a.up.weight) == 0 for a in m.adapters)
+    with pytest.raises(ValueError, match="needs a model with control"):
+        RQHCTransformer(get_preset("tiny").transformer_config(adapter_dim=8, control_horizon=0))

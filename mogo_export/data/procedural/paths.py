@@ -4,9 +4,10 @@
 They hold what a game's locomotion controller asks a motion model for: walks at any speed from 0.6 to
 1.8 m/s and runs from 1.8 to 4 m/s (also speeding up or slowing down), paths of every curvature and sharp
 corners, turns on the spot by any angle, starts, stops and standing still, and moving while facing elsewhere
-(backward, sideways, diagonally). The families' clips step at three paces, turn 0 or 360 degrees on the move
-and 90, 180 or 360 on the spot: a model conditioned on a future root trajectory cannot learn to follow a
-path from them.
+(backward, sideways, diagonally); control sequences (CONTROL_KINDS) also stop inside a walk or run, and change
+its speed, without the caption saying so. The families' clips step at three paces, turn 0 or 360 degrees on
+the move and 90, 180 or 360 on the spot: a model conditioned on a future root trajectory cannot learn to
+follow a path from them.
 
 The body is steered only through the heading track, the cadence and the stride: the feet are planted and
 the root follows from them (grounding.solve_ground), so a speed is asked for by choosing a cadence and the
@@ -38,6 +39,15 @@ SEGMENT_SECONDS = 8.6   # a segment's own frames; with holds and half fades its 
 KINDS = {"walk": 0.30, "run": 0.17, "backpedal": 0.09, "sidestep": 0.09, "diagonal": 0.08, "turn": 0.14,
          "stand": 0.13}
 TURN_EVENT = 30.0       # degrees: a stretch that turns less is captioned as straight ahead
+# Control sequences (`generate_path_sequence(rng, CONTROL_KINDS)`) add two kinds a model steered by a future root
+# trajectory needs in order to follow its speed and its stops: "pause" stops inside a walk or run captioned as only
+# that, "pace" changes speed unnamed. In the other data every change of pace is named and every stop is a segment of
+# its own, so the control only ever refined what the text implied (benchmarks/NOTES.md, "the speed is the
+# prompt's"). They train only the control adapter (mogo_export/adapter.py): mixed into the transformer's data, even
+# only ever with their control, they made text-only walks stop unasked (benchmarks/NOTES.md, "stops and speed
+# changes the caption does not name").
+CONTROL_KINDS = {**KINDS, "pause": 0.25, "pace": 0.20}
+PAUSE_HOLD = (0.0, 1.5)  # s of standing added between the two moves of a pause, to their lead-out and lead-in
 FADE_FRAMES = (6, 16)   # 0.3-0.8 s: every segment starts and ends standing, so a fade joins two stances
 
 
@@ -270,11 +280,12 @@ def gait_verb(speed: float) -> str:
     return _band("walk" if speed < WALK_PACE.speeds[1] else "run", speed)[1]
 
 
-def _travel(rng, kind: str, seconds: float) -> Action:
-    """A walk or a run along a path: steady or changing speed, straight stretches, curves and corners."""
+def _travel(rng, kind: str, seconds: float, unnamed: bool = False) -> Action:
+    """A walk or a run along a path: steady or changing speed, straight stretches, curves and corners;
+    `unnamed`: its speed changes and its caption does not say so (a "pace" segment)."""
     pace = WALK_PACE if kind == "walk" else RUN_PACE
     walk_s = rng.uniform(3.0, max(3.1, seconds - 1.8))
-    speed, v0, v1 = _speed_profile(rng, pace, rng.random() < 0.35)
+    speed, v0, v1 = _speed_profile(rng, pace, unnamed or rng.random() < 0.35)
     pieces = _pieces(rng, pace, walk_s)
     pose, info, tracks = _locomote(rng, pace, walk_s, speed, pieces)
     heading = tracks["heading"]
@@ -288,7 +299,7 @@ def _travel(rng, kind: str, seconds: float) -> Action:
     # a speed that changes band is named only on its own, and then "runs" covers a jog too
     verb, adv = (b0[1], b0[2]) if b0 == b1 else ("walks" if kind == "walk" else "runs", "")
     phrases = [f"{verb}{adv}"]
-    if not turns and b0 != b1:
+    if not turns and b0 != b1 and not unnamed:
         first = f"walks {b0[3]}" if kind == "walk" else b0[3]
         phrases = [f"{first}, then {b1[3]}", f"{first} and then {b1[3]}"]
     elif not turns:
@@ -304,8 +315,40 @@ def _travel(rng, kind: str, seconds: float) -> Action:
             phrases.append(f"{verb}{adv} and turns {'around ' if abs(turns[0]) >= 150 else ''}to the {side}")
     family = "run" if kind == "run" else "walk_circle" if any(abs(e) >= 300 for e in turns) else "walk_forward"
     params = dict(info, kind=kind, speeds=(round(v0, 3), round(v1, 3)), net_turn=round(net, 1),
-                  turns=[(round(e, 1), a, b) for e, a, b in events], pieces=[p[0] for p in pieces])
+                  turns=[(round(e, 1), a, b) for e, a, b in events], pieces=[p[0] for p in pieces],
+                  unnamed=unnamed)
     return Action(family, pose, phrases, params)
+
+
+def _pause(rng, seconds: float) -> Action:
+    """A walk or a run that stops for a while (2.0-2.9 s standing: the two moves' lead-out and lead-in and
+    PAUSE_HOLD) and goes on at another speed, along one heading, captioned as the walk or run alone: where it
+    stops, and how fast each half goes, only the root's own future says."""
+    kind = "walk" if rng.random() < 0.65 else "run"
+    if seconds < 7.5:  # no room for two moves and a stop
+        return _travel(rng, kind, seconds, unnamed=True)
+    pace = WALK_PACE if kind == "walk" else RUN_PACE
+    still = rng.uniform(*PAUSE_HOLD)
+    # each move's own frames add a 0.4-0.9 s lead-in and lead-out (_locomote): 3.6 s at most, less the fade
+    move = max(1.8, (seconds - 3.6 - still) / 2)
+    poses, speeds, walks, cadences = [], [], [], []
+    for _ in range(2):
+        speed, v0, _ = _speed_profile(rng, pace, False)
+        walk_s = rng.uniform(1.8, max(1.9, min(3.2, move)))
+        pose, info, _ = _locomote(rng, pace, walk_s, speed)
+        poses.append(pose)
+        speeds.append(round(v0, 3))
+        walks.append(info["walk"])
+        cadences.append(info["cadence"])
+    first = hold(poses[0], 0, seconds_to_frames(still))
+    fade = 8  # two standing poses
+    pose = blend(first, poses[1], fade)
+    second = first.T - fade
+    verb = "walks" if kind == "walk" else "runs"
+    params = dict(kind="pause", gait=kind, speeds=tuple(speeds), cadence=round(float(np.mean(cadences)), 3),
+                  walk=(walks[0][0], second + walks[1][1]), stop=(walks[0][1], second + walks[1][0]), turns=[])
+    return Action("run" if kind == "run" else "walk_forward", pose,
+                  [verb, f"{verb} forward", f"{verb} straight ahead"], params)
 
 
 def _backpedal(rng, seconds: float) -> Action:
@@ -395,14 +438,15 @@ def _stand(rng, seconds: float) -> Action:
 
 _SEGMENTS = {"walk": lambda rng, s: _travel(rng, "walk", s), "run": lambda rng, s: _travel(rng, "run", s),
              "backpedal": _backpedal, "sidestep": _sideways, "diagonal": _diagonal, "turn": _turn_on_the_spot,
-             "stand": _stand}
+             "stand": _stand, "pause": _pause,
+             "pace": lambda rng, s: _travel(rng, "walk" if rng.random() < 0.65 else "run", s, unnamed=True)}
 
 
-def _draw_segments(rng: np.random.Generator) -> tuple[list[Action], list[int]]:
-    """Segments and the fades before each (0 before the first), until a drawn 20-60 s is reached; never
-    two stands in a row (they would read as one)."""
+def _draw_segments(rng: np.random.Generator, kinds: dict[str, float]) -> tuple[list[Action], list[int]]:
+    """Segments of `kinds` and the fades before each (0 before the first), until a drawn 20-60 s is reached;
+    never two stands in a row (they would read as one)."""
     wanted = rng.uniform(*PATH_SECONDS) * FPS
-    names, p = list(KINDS), np.array(list(KINDS.values()))
+    names, p = list(kinds), np.array(list(kinds.values()))
     actions: list[Action] = []
     fades: list[int] = []
     frames = 0
@@ -432,24 +476,24 @@ def _padding(actions: list[Action], fades: list[int]) -> list[tuple[int, int]]:
 
 
 def _to_span(params: dict, shift: int, length: int) -> None:
-    """The frames a segment steps on ("walk"), keeps its pace on ("steady") and turns on ("turns"), from
-    its own pose's frames to its span's (what a reader of the sequence measures)."""
+    """The frames a segment steps on ("walk"), keeps its pace on ("steady"), stands on between two moves ("stop")
+    and turns on ("turns"), from its own pose's frames to its span's (what a reader of the sequence measures)."""
     def frame(f):
         return int(np.clip(f + shift, 0, length))
-    for key in ("walk", "steady"):
+    for key in ("walk", "steady", "stop"):
         if key in params:
             params[key] = (frame(params[key][0]), frame(params[key][1]))
     if "turns" in params:
         params["turns"] = [(deg, frame(a), frame(b)) for deg, a, b in params["turns"]]
 
 
-def generate_path_sequence(rng: np.random.Generator) -> Clip:
+def generate_path_sequence(rng: np.random.Generator, kinds: dict[str, float] = KINDS) -> Clip:
     """World joints (T, 22, 3) of 20-60 s of locomotion along a random path, 1-2 captions of the whole,
-    and one segment per move (or stand) with its own caption. Segments meet at the middle of each
-    cross-fade, as in sequences.generate_long."""
+    and one segment per move (or stand) with its own caption, drawn from `kinds` (CONTROL_KINDS: a control
+    sequence). Segments meet at the middle of each cross-fade, as in sequences.generate_long."""
     heading = rng.uniform(-180.0, 180.0)
     for _ in range(100):  # redraw the rare path whose spans or total fall outside the bounds
-        actions, fades = _draw_segments(rng)
+        actions, fades = _draw_segments(rng, kinds)
         pads = _padding(actions, fades)
         lengths = [a.pose.T + b + e for a, (b, e) in zip(actions, pads)]
         total = sum(n - f for n, f in zip(lengths, fades))

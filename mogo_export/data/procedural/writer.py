@@ -1,12 +1,12 @@
 """Writing the procedural dataset in the HumanML3D folder layout: the clip files (short clips, then long
-sequences, then path sequences), the train/val/test split, the Mean/Std feature statistics, dataset.json,
-and the command line (`python -m mogo_export.data.procedural`).
+sequences, then path sequences, then control sequences), the train/val/test split, the Mean/Std feature
+statistics, dataset.json, and the command line (`python -m mogo_export.data.procedural`).
 
 The whole dataset is the unit of atomicity: it is written into a hidden temporary sibling folder and
 renamed into place at the end (removed on any failure), so its single files need no atomic writes of their
-own. Everything is a function of (num_clips, long_sequences, path_sequences, seed), whatever the number of
-worker processes; a short clip does not depend on the other two counts, nor a long or path sequence on the
-counts before it (only its id does).
+own. Everything is a function of (num_clips, long_sequences, path_sequences, control_sequences, seed),
+whatever the number of worker processes; a short clip does not depend on the other counts, nor a long, path or
+control sequence on the counts before it (only its id does).
 """
 from __future__ import annotations
 
@@ -31,20 +31,24 @@ from .captions import caption_line
 from .clips import Clip, family_plan, generate_clip, label_for
 from .families import FAMILIES
 from .pose import FPS
-from .paths import generate_path_sequence
+from .paths import CONTROL_KINDS, generate_path_sequence
 from .sequences import generate_long
 
 # 2: jumps land where they are meant to (in place, or their distance ahead); long sequences
 # 3: path sequences (short clips and long sequences unchanged)
 # 4: 46 more action families (styles, transitions, mimed, gestures, combat, exercise; the first 21 unchanged), and
 #    body parts other than the feet that may rest on the floor (kneeling, sitting, lying, falling)
-GENERATOR_VERSION = 4
+# 5: (never shipped) stops and speed changes the caption does not name, inside the path sequences
+# 6: control sequences after the path sequences, listed in dataset.json's "control_only" (everything else unchanged)
+GENERATOR_VERSION = 6
 SPLITS = (("train", 0.80), ("val", 0.15), ("test", 0.05))
 LONG_EVERY = 10  # by default one long sequence per 10 short clips
 PATH_EVERY = 10  # and one path sequence
+CONTROL_EVERY = 10  # and one control sequence
 # generator streams, np.random.default_rng([seed, ..., stream]): a new kind of draw gets a new stream, so
 # adding it changes nothing drawn before (short clips are [seed, index]; family_plan uses 1 and 2)
 SPLIT_STREAM, LONG_STREAM, LONG_SPLIT_STREAM, PATH_STREAM, PATH_SPLIT_STREAM = 3, 4, 5, 6, 7
+CONTROL_STREAM, CONTROL_SPLIT_STREAM = 8, 9
 
 
 def mean_std(features, num_joints: int) -> tuple[np.ndarray, np.ndarray]:
@@ -71,21 +75,28 @@ def mean_std(features, num_joints: int) -> tuple[np.ndarray, np.ndarray]:
     return mean.astype(np.float32), std.astype(np.float32)
 
 
-def _generate(index: int, plan: list[tuple[str, ...]], num_long: int, seed: int) -> tuple[Clip, bool]:
-    """Clip `index`: the short clips of `plan` first, then `num_long` long sequences, then the path
-    sequences; -> (clip, is it timed: a long or path sequence)."""
+def _generate(index: int, plan: list[tuple[str, ...]], num_long: int, num_path: int,
+              seed: int) -> tuple[Clip, bool]:
+    """Clip `index`: the short clips of `plan` first, then `num_long` long sequences, then `num_path` path
+    sequences, then the control sequences; -> (clip, is it timed: a long, path or control sequence)."""
     if index < len(plan):
         return generate_clip(plan[index], np.random.default_rng([seed, index])), False
-    if index < len(plan) + num_long:
-        return generate_long(np.random.default_rng([seed, index - len(plan), LONG_STREAM])), True
-    return generate_path_sequence(np.random.default_rng([seed, index - len(plan) - num_long, PATH_STREAM])), True
+    index -= len(plan)
+    if index < num_long:
+        return generate_long(np.random.default_rng([seed, index, LONG_STREAM])), True
+    index -= num_long
+    if index < num_path:
+        return generate_path_sequence(np.random.default_rng([seed, index, PATH_STREAM])), True
+    rng = np.random.default_rng([seed, index - num_path, CONTROL_STREAM])
+    return generate_path_sequence(rng, CONTROL_KINDS), True
 
 
-def _write_clip(index: int, plan: list[tuple[str, ...]], num_long: int, seed: int,
+def _write_clip(index: int, plan: list[tuple[str, ...]], num_long: int, num_path: int, seed: int,
                 root: Path) -> tuple[str, str, int, list | None]:
-    """Write clip `index`'s files; -> (id, label, frames, its segments if it is a long or path sequence)."""
+    """Write clip `index`'s files; -> (id, label, frames, its segments if it is a long, path or control
+    sequence)."""
     clip_id = f"{index:06d}"
-    (joints, captions, segments), long = _generate(index, plan, num_long, seed)
+    (joints, captions, segments), long = _generate(index, plan, num_long, num_path, seed)
     features = extract_features(joints, HUMANML3D)
     np.save(root / "new_joint_vecs" / f"{clip_id}.npy", features)
     np.save(root / "new_joints" / f"{clip_id}.npy", canonicalize(joints, HUMANML3D).astype(np.float32))
@@ -118,12 +129,12 @@ def _frame_stats(frames: list[int]) -> dict:
     return {"min": int(min(frames)), "max": int(max(frames)), "mean": round(float(np.mean(frames)), 2)}
 
 
-def _build_into(tmp: Path, num_clips: int, num_long: int, num_path: int, seed: int, progress: bool,
-                workers: int) -> None:
+def _build_into(tmp: Path, num_clips: int, num_long: int, num_path: int, num_control: int, seed: int,
+                progress: bool, workers: int) -> None:
     """Write every file of the dataset into `tmp` (see build_dataset)."""
     plan = family_plan(num_clips, seed)
-    job = partial(_write_clip, plan=plan, num_long=num_long, seed=seed, root=tmp)
-    total = num_clips + num_long + num_path
+    job = partial(_write_clip, plan=plan, num_long=num_long, num_path=num_path, seed=seed, root=tmp)
+    total = num_clips + num_long + num_path + num_control
     bar = tqdm(total=total, desc="procedural clips", unit="clip", disable=not progress)
     results = []
     if workers > 1 and total > 1:
@@ -137,15 +148,18 @@ def _build_into(tmp: Path, num_clips: int, num_long: int, num_path: int, seed: i
             bar.update()
     bar.close()
 
-    short, long, path = results[:num_clips], results[num_clips:num_clips + num_long], results[num_clips + num_long:]
+    ends = np.cumsum([num_clips, num_long, num_path])
+    short, long, path, control = results[:ends[0]], results[ends[0]:ends[1]], results[ends[1]:ends[2]], \
+        results[ends[2]:]
     ids = [r[0] for r in short]
     splits = split_ids(ids, seed)
-    # long and path sequences are split on their own, so adding them leaves the short clips' split as it was
+    # long, path and control sequences are split on their own, so adding them leaves the others' split as it was
     long_splits = split_ids([r[0] for r in long], seed, LONG_SPLIT_STREAM)
     path_splits = split_ids([r[0] for r in path], seed, PATH_SPLIT_STREAM)
+    control_splits = split_ids([r[0] for r in control], seed, CONTROL_SPLIT_STREAM)
     for name, members in splits.items():
-        (tmp / f"{name}.txt").write_text("".join(m + "\n" for m in members + long_splits[name] + path_splits[name]),
-                                         encoding="utf-8")
+        members = members + long_splits[name] + path_splits[name] + control_splits[name]
+        (tmp / f"{name}.txt").write_text("".join(m + "\n" for m in members), encoding="utf-8")
     # Statistics over the short clips only: long sequences are the same actions, with standing cross-fades
     # between them; with them Mean/Std would move with how many are built (200 hold a third of the frames).
     train = [tmp / "new_joint_vecs" / f"{m}.npy" for m in splits["train"] or ids]
@@ -154,7 +168,7 @@ def _build_into(tmp: Path, num_clips: int, num_long: int, num_path: int, seed: i
     np.save(tmp / "Std.npy", std)
 
     labels = [r[1] for r in short]
-    segments = {r[0]: r[3] for r in long + path}
+    segments = {r[0]: r[3] for r in long + path + control}
     family_spans = [s["family"] for r in long for s in r[3]]
     path_spans = [s["family"] for r in path for s in r[3]]
     info = {
@@ -162,7 +176,8 @@ def _build_into(tmp: Path, num_clips: int, num_long: int, num_path: int, seed: i
         "generator_version": GENERATOR_VERSION,
         "seed": seed,
         "num_clips": num_clips,
-        "splits": {k: len(v) + len(long_splits[k]) + len(path_splits[k]) for k, v in splits.items()},
+        "splits": {k: len(v) + len(long_splits[k]) + len(path_splits[k]) + len(control_splits[k])
+                   for k, v in splits.items()},
         "families": list(FAMILIES),
         "label_counts": {k: labels.count(k) for k in sorted(set(labels))},
         "label_format": "family name, or 'seq:<first>+<second>' for a two-action sequence (in order); a long "
@@ -180,6 +195,12 @@ def _build_into(tmp: Path, num_clips: int, num_long: int, num_path: int, seed: i
                        "turning, standing, backward, sideways and diagonal steps along a random path) are "
                        "labelled, captioned and segmented as long sequences are: 'seq:' and their segments' "
                        "families, a timed caption per segment, and their segments in \"segments\"",
+        "num_control_sequences": num_control,
+        "control_only": [r[0] for r in control],
+        "control_format": "control sequences (ids after the path sequences) are path sequences that also stop "
+                          "inside a walk or run and change speed without their caption saying so; they are "
+                          "stored as path sequences are, and \"control_only\" lists them: a model learns from "
+                          "them only with their own future root as its control (the control adapter)",
         "segments": segments,
         "segment_format": "long sequence id -> its actions in order, each shown on frames [start, end) of "
                           "new_joints/<id>.npy (the features have one frame fewer); consecutive segments meet "
@@ -195,13 +216,15 @@ def _build_into(tmp: Path, num_clips: int, num_long: int, num_path: int, seed: i
 
 def build_dataset(out_dir, num_clips: int = 2000, seed: int = 0, progress: bool = True, workers: int = 2,
                   overwrite: bool = False, long_sequences: int | None = None,
-                  path_sequences: int | None = None) -> Path:
+                  path_sequences: int | None = None, control_sequences: int | None = None) -> Path:
     """Write a procedural dataset in the HumanML3D folder layout and return its path.
 
     `num_clips` short clips (ids 0 .. num_clips-1: single actions, every 5th a two-action sequence, 2-10 s)
     and then `long_sequences` long ones (default num_clips // 10; 20-60 s, 3-8 actions, sequences.py), and
     then `path_sequences` path sequences (default num_clips // 10; 20-60 s of locomotion along a random path,
-    a segment per move, paths.py; written as long sequences are):
+    a segment per move, paths.py; written as long sequences are), and then `control_sequences` control
+    sequences (default num_clips // 10: path sequences that also stop and change speed unnamed, for the control
+    adapter only; dataset.json's "control_only" lists them):
       new_joint_vecs/NNNNNN.npy  (T-1, 263) float32 features (mogo_export.data.humanml3d.extract_features)
       new_joints/NNNNNN.npy      (T, 22, 3) float32 joints, canonicalised as HumanML3D's are (floor y=0,
                                  frame 0 root at x=z=0 facing +z); the features have one frame fewer
@@ -213,7 +236,7 @@ def build_dataset(out_dir, num_clips: int = 2000, seed: int = 0, progress: bool 
       Mean.npy Std.npy           feature statistics over the short clips' train split (see `mean_std`)
       dataset.json               generator version, seed, counts, families, fps, skeleton, and each long
                                  or path sequence's segments (family, start and end frame)
-    Everything is a function of (num_clips, long_sequences, path_sequences, seed): the same call writes
+    Everything is a function of (the counts and seed): the same call writes
     byte-identical files, whatever `workers` is. The dataset is built in a temporary sibling folder and
     renamed into place at the end.
     """
@@ -226,10 +249,14 @@ def build_dataset(out_dir, num_clips: int = 2000, seed: int = 0, progress: bool 
     num_path = num_clips // PATH_EVERY if path_sequences is None else int(path_sequences)
     if num_path < 0:
         raise ValueError(f"path_sequences must be >= 0, got {path_sequences}")
+    num_control = num_clips // CONTROL_EVERY if control_sequences is None else int(control_sequences)
+    if num_control < 0:
+        raise ValueError(f"control_sequences must be >= 0, got {control_sequences}")
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} already exists; pass overwrite=True (--overwrite) to replace it")
     return write_whole(out, "building", ("new_joint_vecs", "new_joints", "texts", "labels"),
-                       lambda tmp: _build_into(tmp, num_clips, num_long, num_path, seed, progress, workers))
+                       lambda tmp: _build_into(tmp, num_clips, num_long, num_path, num_control, seed, progress,
+                                               workers))
 
 
 def write_whole(out: Path, doing: str, subdirs: tuple[str, ...], fill: Callable[[Path], object]):
@@ -263,6 +290,9 @@ def main(argv=None) -> None:
     ap.add_argument("--long", type=int, default=None, help="long sequences (default: clips // 10)")
     ap.add_argument("--path-sequences", type=int, default=None,
                     help="path sequences: locomotion along random paths (default: clips // 10)")
+    ap.add_argument("--control-sequences", type=int, default=None,
+                    help="control sequences: path sequences with unnamed stops and speed changes, which train "
+                         "only the control adapter (default: clips // 10)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--overwrite", action="store_true", help="replace OUT_DIR if it exists")
@@ -270,7 +300,9 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     out = build_dataset(args.out_dir, args.clips, args.seed, progress=not args.quiet, workers=args.workers,
-                        overwrite=args.overwrite, long_sequences=args.long, path_sequences=args.path_sequences)
+                        overwrite=args.overwrite, long_sequences=args.long, path_sequences=args.path_sequences,
+                        control_sequences=args.control_sequences)
     info = json.loads((out / "dataset.json").read_text(encoding="utf-8"))
-    print(f"wrote {args.clips} clips, {info['num_long_sequences']} long sequences and "
-          f"{info['num_path_sequences']} path sequences to {out} in {time.perf_counter() - t0:.1f} s")
+    print(f"wrote {args.clips} clips, {info['num_long_sequences']} long sequences, "
+          f"{info['num_path_sequences']} path sequences and {info['num_control_sequences']} control sequences to "
+          f"{out} in {time.perf_counter() - t0:.1f} s")
