@@ -13,7 +13,7 @@ shown its own future root and every other weight frozen: a step without control 
 streams keep their tokens bit for bit.
 
 transformer.pt is replaced, atomically, by the model with its adapters and meta["adapter"]; a finished run is
-skipped, an interrupted one starts over (a few minutes).
+skipped, an interrupted one starts over (681 s for `base` on a 2-core CPU).
 """
 from __future__ import annotations
 
@@ -27,8 +27,8 @@ import torch
 from tqdm import tqdm
 
 from .checkpoint import build_from_checkpoint, read_checkpoint, save_checkpoint
-from .distill import guided_kl
 from .data.dataset import read_control_only
+from .distill import guided_kl
 from .distributed import native_bf16
 from .examples import caption_table, clip_examples, load_token_data, pad_examples, to_model, window_examples
 from .models import transformer as tmodel

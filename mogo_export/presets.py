@@ -218,7 +218,7 @@ BASE = Preset(
     # the control adapter (adapter.py), 681 s here: 3 seeds of benchmarks/control.py against this base without it,
     # waypoints reached in time 0.72 -> 0.95 and standing there 0.40 -> 0.94, path speed within 10% 3% -> 23%, game
     # root > 45 deg off the capsule 45% -> 21%, text of controlled streams 0.87 -> 0.97, but jerk 1.89 -> 2.06;
-    # without control the same tokens in every variant. Of 11 trainings on a GPU (benchmarks/NOTES.md, "the control
+    # without control the same tokens in every variant. Of 10 trainings on a GPU (benchmarks/NOTES.md, "the control
     # adapter"), 800 steps at width 128 reached fewer waypoints than none (0.57); the control sequences drawn 4x as
     # often, twice the steps and lr 2e-3 at width 256 made the difference; guiding the control on top cost the text.
     adapter=Adapter(dim=256, steps=1600, lr=2e-3, batch_size=32, windows=8, bf16=True, control_repeat=4),
