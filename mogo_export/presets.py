@@ -88,11 +88,6 @@ class Adapter:
     windows: int = 8       # streaming windows per step (on data with timelines)
     bf16: bool = False     # as Distill.bf16
     control_repeat: int = 1  # the control sequences drawn as often as this many copies of them
-    # then, as the distillation guides the control (Distill.control_guidance), guided_steps more toward
-    # G0 + control_guidance (Gc - G0): Gc the adapted model's logits, G0 those without control
-    control_guidance: float = 1.0
-    guided_steps: int = 0
-    guided_lr: float = 2e-4
 
 
 @dataclass(frozen=True)
@@ -157,8 +152,7 @@ TINY = Preset(
     streaming=Streaming(window=5, refresh=3, windows=4),     # 8 = max_rel_dist
     # a gap the tiny model shows
     distill=Distill(guidance=4.0, steps=10, lr=3e-4, batch_size=8, windows=2, control_guidance=2.0),
-    adapter=Adapter(dim=8, steps=10, lr=1e-3, batch_size=8, windows=2, control_repeat=2, control_guidance=2.0,
-                    guided_steps=3),
+    adapter=Adapter(dim=8, steps=10, lr=1e-3, batch_size=8, windows=2, control_repeat=2),
 )
 
 # The demo model. With these two schedules both models train in 17.9 min on the idle 2-core machine with torch's
